@@ -1,0 +1,49 @@
+"""The ``slamfront`` command: a thin shell over library calls.
+
+Each sub-command is a module here with ``add_parser(subparsers)`` and ``run(args) ->
+int``; :data:`COMMANDS` lists them in the order ``--help`` shows them. User errors
+(:class:`~slamfront.errors.SlamfrontError`) become one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+import slamfront
+from slamfront.cli import inspect_cmd, plugins_cmd, recipes_cmd, run_cmd
+from slamfront.errors import SlamfrontError
+
+COMMANDS = (run_cmd, plugins_cmd, inspect_cmd, recipes_cmd)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="slamfront",
+        description="Plugin-based visual SLAM front end: run recipes, inspect logs, list plugins.",
+    )
+    parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in COMMANDS:
+        command.add_parser(commands)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.handler(args) or 0)
+    except SlamfrontError as exc:
+        print(f"slamfront: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
+        print(f"slamfront: interrupted ({exc or 'SIGINT'}); the log written so far is finalised", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # `slamfront plugins | head`
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

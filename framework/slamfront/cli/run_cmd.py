@@ -1,0 +1,48 @@
+"""``slamfront run RECIPE [-o DIR] [--set k=v]...``"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from slamfront.recipe import build_pipeline, load_recipe
+from slamfront.runtime import run_pipeline
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser(
+        "run",
+        help="run a recipe: writes run.mcap, metrics.json and report.md",
+        description="Run a recipe. Writes DIR/run.mcap, DIR/metrics.json, DIR/report.md and plots.",
+    )
+    parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
+    parser.add_argument("-o", "--out", type=Path, help="output folder (default: logs/<recipe name>/)")
+    parser.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        help="override a recipe field, e.g. --set loop_detector.params.threshold=0.3 (repeatable)",
+    )
+    parser.add_argument("-p", "--plugin-module", action="append", default=[], metavar="MODULE",
+                        help="register an extra plugin module (importable name; repeatable)")
+    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames (a quick smoke run)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    recipe, path = load_recipe(args.recipe, args.overrides)
+    if args.plugin_module:
+        recipe = recipe.model_copy(update={"plugin_modules": [*recipe.plugin_modules, *args.plugin_module]})
+    pipeline = build_pipeline(recipe, str(path))
+    out_dir = args.out or Path("logs") / recipe.name
+    result = run_pipeline(
+        pipeline, str(path), out_dir, progress=False if args.quiet else None, max_frames=args.max_frames
+    )
+    metrics = result.metrics
+    print(f"log:     {result.log_path}")
+    print(f"report:  {result.report_path}")
+    print(f"metrics: {result.metrics_path}")
+    shown = [k for k in ("recall_at_100p", "auc_pr", "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second") if k in metrics]
+    for key in shown:
+        value = metrics[key]
+        print(f"  {key} = {value:.4g}" if isinstance(value, float) else f"  {key} = {value}")
+    return 0

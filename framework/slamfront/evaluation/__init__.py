@@ -1,0 +1,23 @@
+"""Built-in evaluations, chosen from the stages a recipe runs.
+
+Each evaluation watches the run's messages and, at the end, produces metrics for
+``metrics.json``, a section of ``report.md`` and plots.
+"""
+
+from __future__ import annotations
+
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.evaluation.frames import FrameOverview
+from slamfront.evaluation.loops import LoopClosureEvaluation
+from slamfront.plugin import Kind
+
+
+def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
+    """Fresh evaluations for a run whose recipe has the stages ``kinds``."""
+    chosen: list[Evaluation] = [FrameOverview()]
+    if "loop_detector" in kinds:
+        chosen.append(LoopClosureEvaluation())
+    return chosen
+
+
+__all__ = ["Evaluation", "EvaluationContext", "EvaluationReport", "evaluations_for"]

@@ -1,0 +1,49 @@
+"""What an evaluation is: it watches the run's messages, then turns them into metrics,
+a report section and plots."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+from slamfront.messages import Message
+from slamfront.plugin import Source
+from slamfront.recipe import EvalOptions
+
+
+@dataclass
+class EvaluationContext:
+    """What an evaluation gets at the end of a run."""
+
+    source: Source
+    out_dir: Path
+    options: EvalOptions
+    statistics: dict[str, Any]
+    """Stage statistics and run counters already in ``metrics.json``."""
+    plugin_names: dict[str, str]
+    """The recipe's plugin name per kind, for labels."""
+
+
+@dataclass
+class EvaluationReport:
+    """An evaluation's results: metrics for ``metrics.json`` and a section of ``report.md``."""
+
+    title: str
+    metrics: dict[str, Any] = field(default_factory=dict)
+    markdown: str = ""
+    figures: list[str] = field(default_factory=list)
+    """PNG file names (relative to the run folder) the section shows."""
+
+
+class Evaluation:
+    """Base of the built-in evaluations. Keep only what the end needs (no images)."""
+
+    title: ClassVar[str] = ""
+
+    def observe(self, kind: str, message: Message) -> None:
+        """Called for every message the run logs; ``kind`` is the producing stage or ``frames``."""
+
+    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
+        """Compute metrics and write plots; None when there is nothing to evaluate."""
+        raise NotImplementedError

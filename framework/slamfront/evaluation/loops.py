@@ -1,0 +1,111 @@
+"""Loop-closure evaluation: precision-recall, recall at 100 % precision, AUC-PR, recall@K,
+and the match plot (chosen reference vs query over the ground-truth band)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamfront.core.loops import precision_recall, recall_at_k
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.messages import FrameInfo, LoopResult, Message
+from slamfront.report import plots
+
+
+class LoopClosureEvaluation(Evaluation):
+    """Scores every ``LoopResult`` against the source's loop ground truth."""
+
+    title = "Loop closure"
+
+    def __init__(self) -> None:
+        self._results: dict[int, LoopResult] = {}
+        self._sequence_index: dict[int, tuple[str, int]] = {}
+
+    def observe(self, kind: str, message: Message) -> None:
+        if isinstance(message, LoopResult):
+            self._results[message.frame] = message
+        elif isinstance(message, FrameInfo):
+            self._sequence_index[message.frame] = (message.traversal, message.sequence_index)
+
+    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
+        truth = context.source.loop_ground_truth()
+        if truth is None:
+            return EvaluationReport(self.title, markdown="The source has no loop ground truth: nothing to score.\n")
+        frames = truth.queries
+        missing = LoopResult(frame=-1, match=-1, confidence=float("nan"), accepted=False, reason="not reported")
+        results = [self._results.get(int(f), missing) for f in frames]
+        match = np.array([r.match for r in results], dtype=np.int64)
+        confidence = np.array([r.confidence for r in results], dtype=np.float64)
+        accepted = np.array([r.accepted for r in results], dtype=bool)
+        answered = match >= 0
+        correct = truth.is_correct(frames, match)
+        positives = truth.has_true_match()
+        curve = precision_recall(confidence, answered, correct, int(positives.sum()))
+
+        op_accepted = accepted & answered
+        op_tp = int(np.sum(op_accepted & correct))
+        metrics: dict[str, float | int | None] = {
+            "recall_at_100p": curve.recall_at_100p,
+            "auc_pr": curve.auc,
+            "n_queries": int(len(frames)),
+            "n_queries_with_true_match": int(positives.sum()),
+            "n_answered": int(answered.sum()),
+            "n_not_reported": int(sum(1 for f in frames if int(f) not in self._results)),
+            "threshold_at_100p": curve.threshold_at_100p(),
+            "precision_at_operating_point": op_tp / max(int(op_accepted.sum()), 1),
+            "recall_at_operating_point": op_tp / max(int(positives.sum()), 1),
+        }
+        candidates = [r.candidates for r in results]
+        if any(c is not None for c in candidates):
+            for k, value in recall_at_k(frames, candidates, truth, context.options.recall_at_k).items():
+                metrics[f"recall_at_{k}"] = value
+
+        figures = []
+        if context.options.plots:
+            figures = self._plots(context, curve, frames, match, confidence, correct, truth)
+        table = "\n".join(
+            [
+                "| metric | value |",
+                "| --- | --- |",
+                *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items()),
+            ]
+        )
+        markdown = f"{table}\n\n" + "".join(f"![{name}]({name})\n\n" for name in figures)
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
+
+    def _plots(self, context, curve, frames, match, confidence, correct, truth) -> list[str]:  # type: ignore[no-untyped-def]
+        pr_path = plots.pr_curves(
+            {context.plugin_names.get("loop_detector", "detector"): (curve.recall, curve.precision)},
+            context.out_dir / "pr.png",
+            title=f"precision-recall (recall@100%P = {curve.recall_at_100p:.3f}, AUC = {curve.auc:.3f})",
+        )
+
+        def seq(frame_indices: np.ndarray) -> np.ndarray:
+            return np.array(
+                [self._sequence_index.get(int(f), ("", np.nan))[1] if f >= 0 else np.nan for f in frame_indices],
+                dtype=np.float64,
+            )
+
+        lo = np.full(len(frames), np.nan)
+        hi = np.full(len(frames), np.nan)
+        rows = truth.rows_of(frames)
+        for k, row in enumerate(rows):
+            span = truth.matches[truth.indptr[row] : truth.indptr[row + 1]]
+            if len(span):
+                lo[k], hi[k] = seq(span[:1])[0], seq(span[-1:])[0]
+        match_path = plots.match_plot(
+            query=seq(frames),
+            match=seq(match),
+            confidence=np.nan_to_num(confidence, nan=0.0),
+            correct=correct,
+            truth_lo=lo,
+            truth_hi=hi,
+            path=context.out_dir / "matches.png",
+            title="chosen match vs query (green: ground truth band)",
+        )
+        return [pr_path.name, match_path.name]
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.4f}"
+    return str(value)

@@ -1,0 +1,281 @@
+"""Reading run logs, including truncated ones.
+
+A complete log is summarised from its summary section; a log without one (a run killed
+by power loss) is scanned record by record up to the first incomplete record, and the
+summary says what was lost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import asdict, dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+
+from slamfront.errors import LogError
+from slamfront.messages import decode_any, message_class
+
+# Damaged bytes fail in many layers (record parsing, struct, zstd/lz4, CRC checks);
+# every one of them means "the file ends here" for a scan.
+_READ_ERRORS = (Exception,)
+
+
+@dataclass
+class TopicSummary:
+    """One topic of a log."""
+
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    message_encoding: str
+    count: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+
+@dataclass
+class LogSummary:
+    """What a log holds. ``complete`` is False for a truncated file; ``problem`` says why."""
+
+    path: str
+    size_bytes: int
+    topics: list[TopicSummary]
+    complete: bool
+    problem: str | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: list[str] = field(default_factory=list)
+
+    @property
+    def n_messages(self) -> int:
+        return sum(t.count for t in self.topics)
+
+    @property
+    def start_ns(self) -> int | None:
+        firsts = [t.first_ns for t in self.topics if t.first_ns is not None]
+        return min(firsts) if firsts else None
+
+    @property
+    def end_ns(self) -> int | None:
+        lasts = [t.last_ns for t in self.topics if t.last_ns is not None]
+        return max(lasts) if lasts else None
+
+    def topic(self, name: str) -> TopicSummary:
+        for topic in self.topics:
+            if topic.topic == name:
+                return topic
+        raise KeyError(name)
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        data.update(n_messages=self.n_messages, start_ns=self.start_ns, end_ns=self.end_ns)
+        span = None if self.start_ns is None else (self.end_ns - self.start_ns) / 1e9
+        data["duration_s"] = span
+        return data
+
+
+@dataclass(frozen=True)
+class LoggedMessage:
+    """One message as stored, decodable on demand."""
+
+    topic: str
+    schema_name: str
+    message_encoding: str
+    log_time_ns: int
+    sequence: int
+    data: bytes
+    schema_data: bytes = b""
+
+    @cached_property
+    def decoded(self) -> Any:
+        """A slamfront :class:`~slamfront.messages.Message` (or a dict when its type is not
+        imported), or a protobuf object for Foxglove messages."""
+        if self.message_encoding == "json":
+            try:
+                return message_class(self.schema_name).from_json(self.data)
+            except LogError:
+                return decode_any(self.data)
+        if self.message_encoding == "protobuf":
+            schema = Schema(id=0, name=self.schema_name, encoding="protobuf", data=self.schema_data)
+            decoder = ProtobufDecoderFactory().decoder_for("protobuf", schema)
+            if decoder is None:
+                raise LogError(f"cannot decode protobuf schema {self.schema_name}")
+            return decoder(self.data)
+        raise LogError(f"unsupported message encoding {self.message_encoding!r} on {self.topic}")
+
+
+def _open(path: Path) -> Any:
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise LogError(f"{path}: no such log file") from None
+    except OSError as exc:
+        raise LogError(f"{path}: cannot read log: {exc.strerror or exc}") from exc
+
+
+def _check_magic(path: Path, stream: Any) -> None:
+    head = stream.read(8)
+    stream.seek(0)
+    if head != b"\x89MCAP0\r\n":
+        raise LogError(f"{path}: not an MCAP file (bad magic bytes)")
+
+
+def summarize(path: Path | str) -> LogSummary:
+    """Summarise a log; never raises on truncation (see :attr:`LogSummary.complete`).
+
+    :raises LogError: the file is missing or not MCAP at all.
+    """
+    path = Path(path)
+    with _open(path) as stream:
+        _check_magic(path, stream)
+        size = path.stat().st_size
+        try:
+            reader = make_reader(stream)
+            summary = reader.get_summary()
+            if summary is not None and summary.statistics is not None:
+                return _from_summary(path, size, reader, summary)
+        except _READ_ERRORS:
+            pass  # no usable summary section: fall back to a scan
+        stream.seek(0)
+        return _scan(path, size, stream)
+
+
+def _from_summary(path: Path, size: int, reader: Any, summary: Any) -> LogSummary:
+    topics = []
+    counts = summary.statistics.channel_message_counts
+    spans: dict[int, list[int]] = {}
+    for index in summary.chunk_indexes:
+        for channel_id in index.message_index_offsets:
+            span = spans.setdefault(channel_id, [index.message_start_time, index.message_end_time])
+            span[0] = min(span[0], index.message_start_time)
+            span[1] = max(span[1], index.message_end_time)
+    for channel_id, channel in sorted(summary.channels.items()):
+        schema = summary.schemas.get(channel.schema_id)
+        first, last = spans.get(channel_id, (None, None))
+        topics.append(
+            TopicSummary(
+                topic=channel.topic,
+                schema_name=schema.name if schema else "",
+                schema_encoding=schema.encoding if schema else "",
+                message_encoding=channel.message_encoding,
+                count=counts.get(channel_id, 0),
+                first_ns=first,
+                last_ns=last,
+            )
+        )
+    metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    attachments = [a.name for a in reader.iter_attachments()]
+    return LogSummary(str(path), size, topics, complete=True, metadata=metadata, attachments=attachments)
+
+
+def _records(path: Path, stream: Any) -> Iterator[tuple[Any, int]]:
+    """Records in file order with the stream position after each; stops at damage."""
+    reader = StreamReader(stream, skip_magic=False, emit_chunks=False)
+    for record in reader.records:
+        yield record, stream.tell()
+
+
+def _scan(path: Path, size: int, stream: Any) -> LogSummary:
+    schemas: dict[int, Schema] = {}
+    topics: dict[int, TopicSummary] = {}
+    metadata: dict[str, dict[str, str]] = {}
+    attachments: list[str] = []
+    complete, problem, position = False, None, 0
+    try:
+        for record, position in _records(path, stream):
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel) and record.id not in topics:
+                schema = schemas.get(record.schema_id)
+                topics[record.id] = TopicSummary(
+                    record.topic,
+                    schema.name if schema else "",
+                    schema.encoding if schema else "",
+                    record.message_encoding,
+                )
+            elif isinstance(record, Message) and record.channel_id in topics:
+                topic = topics[record.channel_id]
+                topic.count += 1
+                topic.first_ns = record.log_time if topic.first_ns is None else min(topic.first_ns, record.log_time)
+                topic.last_ns = record.log_time if topic.last_ns is None else max(topic.last_ns, record.log_time)
+            elif isinstance(record, Metadata):
+                metadata[record.name] = dict(record.metadata)
+            elif isinstance(record, Attachment):
+                attachments.append(record.name)
+            elif isinstance(record, Footer):
+                complete = True
+    except _READ_ERRORS as exc:
+        problem = (
+            f"truncated or damaged after byte {position} of {size}: the chunk being written "
+            f"there and everything after it is lost ({type(exc).__name__}: {exc})"
+        )
+    if not complete and problem is None:
+        problem = f"log has no footer (ends at byte {size}): the run did not finalise it"
+    return LogSummary(
+        str(path), size, list(topics.values()), complete=complete, problem=problem,
+        metadata=metadata, attachments=attachments,
+    )
+
+
+def read_messages(
+    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True
+) -> Iterator[LoggedMessage]:
+    """Messages in the order they were written.
+
+    :param topics: only these topics (all when None).
+    :param strict: raise :class:`LogError` at damage; when False, stop quietly there.
+    """
+    path = Path(path)
+    wanted = set(topics) if topics is not None else None
+    with _open(path) as stream:
+        _check_magic(path, stream)
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        position = 0
+        try:
+            for record, position in _records(path, stream):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    channel = channels.get(record.channel_id)
+                    if channel is None or (wanted is not None and channel.topic not in wanted):
+                        continue
+                    schema = schemas.get(channel.schema_id)
+                    yield LoggedMessage(
+                        topic=channel.topic,
+                        schema_name=schema.name if schema else "",
+                        message_encoding=channel.message_encoding,
+                        log_time_ns=record.log_time,
+                        sequence=record.sequence,
+                        data=bytes(record.data),
+                        schema_data=bytes(schema.data) if schema else b"",
+                    )
+                elif isinstance(record, (DataEnd, Footer)):
+                    break
+        except _READ_ERRORS as exc:
+            if strict:
+                raise LogError(f"{path}: truncated or damaged after byte {position}: {exc}") from exc
+
+
+def read_attachment(path: Path | str, name: str) -> bytes:
+    """The data of the attachment called ``name``.
+
+    :raises LogError: when the log has no such attachment.
+    """
+    path = Path(path)
+    with _open(path) as stream:
+        _check_magic(path, stream)
+        try:
+            for record, _ in _records(path, stream):
+                if isinstance(record, Attachment) and record.name == name:
+                    return bytes(record.data)
+        except _READ_ERRORS as exc:
+            raise LogError(f"{path}: damaged before attachment {name!r} was found: {exc}") from exc
+    raise LogError(f"{path}: the log has no attachment {name!r}")

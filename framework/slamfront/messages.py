@@ -1,0 +1,293 @@
+"""slamfront's own log messages: typed records that round-trip bit-exactly through MCAP.
+
+Every stage output is a frozen dataclass deriving from :class:`Message`. The log stores
+it as JSON (``message_encoding = "json"``) with a JSON Schema (``schema_encoding =
+"jsonschema"``) generated from the dataclass, so Foxglove shows every field and any
+reader can decode it without slamfront. NumPy arrays are stored as
+``{"dtype": "<f4", "shape": [...], "data": <base64 of the raw bytes>}`` and floats as
+JSON numbers (Python prints the shortest repr that round-trips) or, when not finite, as
+the strings ``"nan"``, ``"inf"``, ``"-inf"``: decoding gives back identical bits.
+
+A plugin that needs a message type of its own derives from :class:`Message` in its
+module; :func:`message_class` finds it by schema name once the module is imported.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from slamfront.errors import LogError
+
+_NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+@dataclass(frozen=True, eq=False)
+class Message:
+    """Base of every slamfront message. Subclasses are frozen dataclasses.
+
+    :cvar schema_name: the MCAP schema name, ``slamfront.<Type>``.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.Message"
+
+    def to_json(self) -> bytes:
+        """Encode as compact UTF-8 JSON (see the module docstring for arrays and floats)."""
+        payload = {f.name: _encode(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+
+    @classmethod
+    def from_json(cls, data: bytes | str) -> typing.Self:
+        """Decode what :meth:`to_json` wrote; arrays come back with their dtype and bits."""
+        raw = json.loads(data)
+        hints = typing.get_type_hints(cls)
+        kwargs = {}
+        for f in dataclasses.fields(cls):
+            if f.name in raw:
+                kwargs[f.name] = _decode(raw[f.name], hints[f.name])
+        return cls(**kwargs)
+
+    @classmethod
+    def json_schema(cls) -> dict[str, Any]:
+        """A JSON Schema (draft 2020-12) describing the encoded message."""
+        hints = typing.get_type_hints(cls)
+        properties = {f.name: _schema_for(hints[f.name]) for f in dataclasses.fields(cls)}
+        return {
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "title": cls.schema_name,
+            "description": (cls.__doc__ or "").strip().splitlines()[0],
+            "type": "object",
+            "properties": properties,
+        }
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """Extra Foxglove messages that show this one in a panel: ``[(topic suffix, protobuf)]``.
+
+        The runtime writes each on ``/<stage kind>/<suffix>``. Default: none.
+        """
+        return []
+
+    def same_as(self, other: Message) -> bool:
+        """True when both messages encode to the same bytes (arrays compared bit for bit)."""
+        return type(self) is type(other) and self.to_json() == other.to_json()
+
+
+def decode_any(data: bytes | str) -> dict[str, Any]:
+    """Decode any slamfront JSON message to a dict, arrays as NumPy arrays.
+
+    Works without knowing the message class, so ``inspect`` and ``diff`` can read logs
+    written by plugins that are not installed.
+    """
+    return {key: _decode(value, Any) for key, value in json.loads(data).items()}
+
+
+def message_class(schema_name: str) -> type[Message]:
+    """The imported :class:`Message` subclass with this schema name.
+
+    :raises LogError: when no imported module defines it.
+    """
+    pending: list[type[Message]] = [Message]
+    while pending:
+        cls = pending.pop()
+        if cls.schema_name == schema_name:
+            return cls
+        pending.extend(cls.__subclasses__())
+    raise LogError(f"no message type named {schema_name!r} is known (is its plugin installed?)")
+
+
+# --- encoding helpers -----------------------------------------------------------------
+
+
+def _encode(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        array = np.ascontiguousarray(value)
+        return {
+            "dtype": array.dtype.str,
+            "shape": list(array.shape),
+            "data": base64.b64encode(array.tobytes()).decode("ascii"),
+        }
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if math.isfinite(value):
+            return value
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, dict):
+        return {str(k): _encode(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_encode(v) for v in value]
+    return value
+
+
+def _is_array_payload(value: Any) -> bool:
+    return isinstance(value, dict) and value.keys() == {"dtype", "shape", "data"}
+
+
+def _decode(value: Any, hint: Any) -> Any:
+    if value is None:
+        return None
+    if _is_array_payload(value):
+        array = np.frombuffer(base64.b64decode(value["data"]), dtype=np.dtype(value["dtype"]))
+        return array.reshape(value["shape"]).copy()
+    if isinstance(value, str) and value in _NONFINITE and _accepts_float(hint):
+        return _NONFINITE[value]
+    if isinstance(value, dict):
+        inner = _dict_value_hint(hint)
+        return {k: _decode(v, inner) for k, v in value.items()}
+    if isinstance(value, list):
+        inner = _list_item_hint(hint)
+        decoded = [_decode(v, inner) for v in value]
+        return tuple(decoded) if typing.get_origin(_strip_optional(hint)) is tuple else decoded
+    if isinstance(value, int) and _strip_optional(hint) is float:
+        return float(value)
+    return value
+
+
+def _strip_optional(hint: Any) -> Any:
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if len(args) == 1:
+            return args[0]
+    return hint
+
+
+def _accepts_float(hint: Any) -> bool:
+    if hint is Any or hint is float:
+        return True
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return any(_accepts_float(a) for a in typing.get_args(hint))
+    return False
+
+
+def _list_item_hint(hint: Any) -> Any:
+    args = typing.get_args(_strip_optional(hint))
+    return args[0] if args else Any
+
+
+def _dict_value_hint(hint: Any) -> Any:
+    args = typing.get_args(_strip_optional(hint))
+    return args[1] if len(args) == 2 else Any
+
+
+_ARRAY_SCHEMA = {
+    "type": "object",
+    "description": "NumPy array: dtype string, shape, raw little/big-endian bytes in base64",
+    "properties": {
+        "dtype": {"type": "string"},
+        "shape": {"type": "array", "items": {"type": "integer"}},
+        "data": {"type": "string", "contentEncoding": "base64"},
+    },
+}
+
+
+def _schema_for(hint: Any) -> dict[str, Any]:
+    origin = typing.get_origin(hint)
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        options = [_schema_for(a) for a in typing.get_args(hint) if a is not type(None)]
+        nullable = type(None) in typing.get_args(hint)
+        schema = options[0] if len(options) == 1 else {"anyOf": options}
+        return {"anyOf": [schema, {"type": "null"}]} if nullable else schema
+    if hint is np.ndarray:
+        return _ARRAY_SCHEMA
+    if hint is bool:
+        return {"type": "boolean"}
+    if hint is int:
+        return {"type": "integer"}
+    if hint is float:
+        return {"anyOf": [{"type": "number"}, {"enum": list(_NONFINITE)}]}
+    if hint is str:
+        return {"type": "string"}
+    if origin in (list, tuple):
+        return {"type": "array", "items": _schema_for(_list_item_hint(hint))}
+    if origin is dict:
+        return {"type": "object", "additionalProperties": _schema_for(_dict_value_hint(hint))}
+    return {}
+
+
+# --- the messages every run can produce -----------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class FrameInfo(Message):
+    """What the source said about a frame (its pixels go to the image topic)."""
+
+    schema_name: ClassVar[str] = "slamfront.FrameInfo"
+    frame: int
+    timestamp: float
+    traversal: str
+    sequence_index: int
+    name: str
+    width: int
+    height: int
+    has_depth: bool = False
+    pose: np.ndarray | None = None
+    """(4, 4) ground-truth camera-to-world transform, when the source knows it."""
+
+
+@dataclass(frozen=True, eq=False)
+class Features(Message):
+    """A descriptor stage's output for one frame: a global vector and/or local features."""
+
+    schema_name: ClassVar[str] = "slamfront.Features"
+    frame: int
+    vector: np.ndarray | None = None
+    """(D,) global descriptor."""
+    keypoints: np.ndarray | None = None
+    """(N, 2) float32 pixel coordinates x, y of local features."""
+    descriptors: np.ndarray | None = None
+    """(N, D) local descriptors: float32, or uint8 packed bits for binary descriptors."""
+    metric: str = "l2"
+    """How vectors/descriptors are compared: ``l1``, ``l2``, ``cosine`` or ``hamming``."""
+    keypoint_info: np.ndarray | None = None
+    """(N, 4) float32 size, angle, response, octave of each keypoint (optional)."""
+
+
+@dataclass(frozen=True, eq=False)
+class PlaceAssignment(Message):
+    """A place map's decision for one frame: which place it joined."""
+
+    schema_name: ClassVar[str] = "slamfront.PlaceAssignment"
+    frame: int
+    place: int
+    new_place: bool
+    n_places: int
+
+
+@dataclass(frozen=True, eq=False)
+class LoopResult(Message):
+    """A loop detector's answer for one query frame.
+
+    ``match`` is the frame index of the matched place, or -1 for an explicit "no answer".
+    ``confidence`` is in [0, 1], higher is surer; evaluation sweeps it to draw the
+    precision-recall curve. ``accepted`` is the detector's own decision at its
+    configured operating point.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.LoopResult"
+    frame: int
+    match: int
+    confidence: float
+    accepted: bool
+    candidates: np.ndarray | None = None
+    """(K,) int64 candidate frame indices, best first (for recall@K), if the detector ranks."""
+    reason: str = ""
+    """Why there is no answer, when ``match`` is -1."""
+
+
+@dataclass(frozen=True, eq=False)
+class RunMetrics(Message):
+    """The run's final metrics, as written to ``metrics.json``."""
+
+    schema_name: ClassVar[str] = "slamfront.RunMetrics"
+    values: dict[str, Any] = field(default_factory=dict)

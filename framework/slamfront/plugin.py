@@ -1,0 +1,188 @@
+"""What a plugin is: a class with a name, a kind, a docstring and a pydantic ``Config``.
+
+Kinds, in the order a run calls them for each frame::
+
+    source -> descriptor -> place_map -> loop_detector -> localizer -> registration -> backend
+
+A plugin is constructed as ``Plugin(config)``, nothing else. A stage receives each frame
+together with the outputs earlier stages produced for it (:class:`StageInputs`) and
+returns its own outputs as :class:`~slamfront.messages.Message` objects, which the
+runtime logs and evaluates. Plugins never write files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict
+
+from slamfront.frame import Frame
+from slamfront.messages import Message
+
+if TYPE_CHECKING:
+    from slamfront.core.loops import LoopGroundTruth
+
+Kind = Literal[
+    "source", "descriptor", "place_map", "loop_detector", "localizer", "registration", "backend"
+]
+STAGE_KINDS: tuple[Kind, ...] = (
+    "descriptor",
+    "place_map",
+    "loop_detector",
+    "localizer",
+    "registration",
+    "backend",
+)
+"""Processing stages in the order a run calls them."""
+KINDS: tuple[Kind, ...] = ("source", *STAGE_KINDS)
+
+
+class PluginConfig(BaseModel):
+    """Base of every plugin's ``Config``: unknown keys are errors, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Plugin:
+    """Base of every plugin.
+
+    :cvar name: the name recipes use (``plugin: <name>``); unique within its kind.
+    :cvar kind: one of :data:`KINDS`; set by the kind's base class below.
+    :cvar version: the plugin's own version, recorded in every log it runs in.
+    """
+
+    name: ClassVar[str]
+    kind: ClassVar[Kind]
+    version: ClassVar[str] = "0.1.0"
+
+    class Config(PluginConfig):
+        """No parameters."""
+
+    def __init__(self, config: PluginConfig | None = None) -> None:
+        self.config = config if config is not None else self.Config()
+
+    @classmethod
+    def summary(cls) -> str:
+        """The first line of the docstring."""
+        return (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        """Verify this plugin can work with the others in the recipe, before any frame.
+
+        :param stages: every plugin of the recipe, by kind (``"source"`` included).
+        :raises PluginError: naming the incompatible plugins and why.
+        """
+
+
+class Source(Plugin):
+    """Yields frames. Sources are the only plugins that read data."""
+
+    kind: ClassVar[Kind] = "source"
+
+    def frames(self) -> Iterator[Frame]:
+        """Yield the run's frames in order, lazily, with ``index`` counting from 0."""
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        """How many frames :meth:`frames` will yield (for progress bars)."""
+        raise NotImplementedError
+
+    def loop_ground_truth(self) -> LoopGroundTruth | None:
+        """Which reported matches count as correct, for loop-detection evaluation."""
+        return None
+
+
+@dataclass
+class StageInputs:
+    """What a stage gets for one frame: the outputs of the stages that ran before it.
+
+    :ivar frame: the frame being processed.
+    :ivar outputs: messages earlier stages returned for this frame, by stage kind.
+    :ivar stages: the earlier stage plugins themselves, by kind, for stages that query
+        another (a detector asking the place map for nearest neighbours).
+    """
+
+    frame: Frame
+    outputs: dict[str, list[Message]] = field(default_factory=dict)
+    stages: Mapping[str, Stage] = field(default_factory=dict)
+
+    def one(self, kind: str, message_type: type[Any] = Message) -> Any:
+        """The single message of ``message_type`` an earlier ``kind`` stage produced.
+
+        :raises KeyError: when that stage produced none for this frame.
+        """
+        for message in self.outputs.get(kind, ()):
+            if isinstance(message, message_type):
+                return message
+        raise KeyError(f"stage {kind!r} produced no {message_type.__name__} for frame {self.frame.index}")
+
+
+class Stage(Plugin):
+    """A processing stage: called once per frame, then once at the end of the run."""
+
+    requires: ClassVar[tuple[Kind, ...]] = ()
+    """Stage kinds that must run before this one (checked when the recipe is loaded)."""
+
+    def process(self, inputs: StageInputs) -> Sequence[Message]:
+        """Process one frame; return this stage's outputs (possibly about earlier frames)."""
+        raise NotImplementedError
+
+    def finish(self) -> Sequence[Message]:
+        """Called after the last frame: return any outputs still pending."""
+        return ()
+
+    def statistics(self) -> dict[str, float | int]:
+        """Counters for ``metrics.json`` (e.g. ``n_searches``), read after :meth:`finish`."""
+        return {}
+
+
+class Descriptor(Stage):
+    """Frame -> global vector and/or local keypoints with descriptors (``Features``)."""
+
+    kind: ClassVar[Kind] = "descriptor"
+    produces_global: ClassVar[bool] = False
+    produces_local: ClassVar[bool] = False
+
+
+class PlaceMap(Stage):
+    """An incremental topological map with nearest-neighbour search over its places."""
+
+    kind: ClassVar[Kind] = "place_map"
+    requires: ClassVar[tuple[Kind, ...]] = ("descriptor",)
+
+
+class LoopDetector(Stage):
+    """Query frame -> ``LoopResult``: a match and a confidence, or an explicit no-answer."""
+
+    kind: ClassVar[Kind] = "loop_detector"
+
+
+class Localizer(Stage):
+    """Frame -> pose or node in a keyframe map."""
+
+    kind: ClassVar[Kind] = "localizer"
+
+
+class Registration(Stage):
+    """Point clouds -> relative transforms and a global model."""
+
+    kind: ClassVar[Kind] = "registration"
+
+
+class Backend(Stage):
+    """Odometry and loop closures -> an optimised trajectory."""
+
+    kind: ClassVar[Kind] = "backend"
+
+
+KIND_BASES: Mapping[Kind, type[Plugin]] = {
+    "source": Source,
+    "descriptor": Descriptor,
+    "place_map": PlaceMap,
+    "loop_detector": LoopDetector,
+    "localizer": Localizer,
+    "registration": Registration,
+    "backend": Backend,
+}

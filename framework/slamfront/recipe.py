@@ -1,0 +1,236 @@
+"""Recipes: one YAML file per experiment, validated by pydantic before the first frame.
+
+A recipe names a source, one plugin per stage it uses (``plugin:`` + ``params:``, the
+params validated by that plugin's own ``Config``), and options for the log and the
+evaluation. ``--set a.b=c`` overrides any field before validation (the value is parsed
+as YAML, so ``--set loop_detector.params.threshold=0.3`` gives a float).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from slamfront.data import checkout_root, data_root
+from slamfront.errors import PluginError, RecipeError
+from slamfront.plugin import STAGE_KINDS, Kind, Plugin, Source, Stage
+from slamfront.registry import PluginRegistry
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class StageSpec(_Strict):
+    """One stage of a recipe: which plugin, with which parameters."""
+
+    plugin: str = Field(description="plugin name (see `slamfront plugins`)")
+    params: dict[str, Any] = Field(default_factory=dict, description="the plugin's Config fields")
+
+
+class LogOptions(_Strict):
+    """What goes into ``run.mcap`` besides the stage outputs."""
+
+    images: bool = Field(True, description="log input images as foxglove.CompressedImage")
+    image_max_width: int = Field(320, ge=16, description="downscale logged images to this width")
+    image_format: Literal["jpeg", "png"] = Field("jpeg", description="png is lossless")
+    jpeg_quality: int = Field(80, ge=1, le=100)
+    depth: bool = Field(False, description="log depth images (foxglove.RawImage, 16-bit mm)")
+    compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
+    chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+
+
+class EvalOptions(_Strict):
+    """How the run is evaluated and reported."""
+
+    plots: bool = Field(True, description="write PNG plots next to report.md")
+    recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
+
+
+class Recipe(_Strict):
+    """A whole experiment."""
+
+    name: str = Field(description="run name; the default output folder is logs/<name>/")
+    description: str = ""
+    plugin_modules: list[str] = Field(
+        default_factory=list, description="extra importable plugin modules to register"
+    )
+    source: StageSpec
+    descriptor: StageSpec | None = None
+    place_map: StageSpec | None = None
+    loop_detector: StageSpec | None = None
+    localizer: StageSpec | None = None
+    registration: StageSpec | None = None
+    backend: StageSpec | None = None
+    log: LogOptions = Field(default_factory=LogOptions)
+    eval: EvalOptions = Field(default_factory=EvalOptions)
+
+    def stage_specs(self) -> dict[Kind, StageSpec]:
+        """The source and the stages present, in run order."""
+        specs = {"source": self.source}
+        for kind in STAGE_KINDS:
+            spec = getattr(self, kind)
+            if spec is not None:
+                specs[kind] = spec
+        return specs  # type: ignore[return-value]
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+
+
+def recipes_dir() -> Path:
+    """The shipped recipes (``recipes/`` in the checkout)."""
+    return checkout_root() / "recipes"
+
+
+def find_recipe(name_or_path: str | Path) -> Path:
+    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = recipes_dir() / f"{name_or_path}.yaml"
+    if path.suffix == "" and shipped.exists():
+        return shipped
+    raise RecipeError(f"{name_or_path}: no such recipe file (shipped recipes: `slamfront recipes`)")
+
+
+def read_recipe_dict(path: Path) -> dict[str, Any]:
+    """Parse a recipe file to a dict, with the file named in any error."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise RecipeError(f"{path}: cannot read recipe: {exc.strerror or exc}") from exc
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}" if mark is not None else ""
+        raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
+    if not isinstance(raw, dict):
+        raise RecipeError(f"{path}: a recipe must be a YAML mapping, got {type(raw).__name__}")
+    raw.setdefault("name", path.stem)
+    return raw
+
+
+def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
+    """Apply ``a.b.c=value`` overrides to a recipe dict (returns a new dict).
+
+    The value is parsed as YAML. Missing intermediate mappings are created, so
+    ``--set loop_detector.params.k=5`` works whether or not ``params`` was written.
+    """
+    result = yaml.safe_load(yaml.safe_dump(raw))  # deep copy of plain data
+    for item in overrides:
+        key, sep, value_text = item.partition("=")
+        if not sep or not key:
+            raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
+        try:
+            value = yaml.safe_load(value_text) if value_text.strip() else ""
+        except yaml.YAMLError as exc:
+            raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {exc}") from exc
+        node: Any = result
+        parts = key.split(".")
+        for depth, part in enumerate(parts[:-1]):
+            if isinstance(node, dict):
+                if node.get(part) is None:
+                    if depth == 0 and part in STAGE_KINDS and parts[1] != "plugin":
+                        raise RecipeError(
+                            f"{origin} {item!r}: the recipe has no {part!r} stage; set {part}.plugin first"
+                        )
+                    node[part] = {}
+                node = node[part]
+            elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
+                node = node[int(part)]
+            else:
+                raise RecipeError(f"{origin} {item!r}: {'.'.join(parts[: depth + 1])} is not a mapping")
+        if not isinstance(node, dict):
+            raise RecipeError(f"{origin} {item!r}: {'.'.join(parts[:-1])} is not a mapping")
+        node[parts[-1]] = value
+    return result
+
+
+def _format_validation(exc: ValidationError, prefix: str) -> str:
+    """pydantic's first error as ``prefix.field.path: message (got value)``."""
+    err = exc.errors()[0]
+    loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
+    got = err.get("input")
+    shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
+    more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
+    return f"{loc}: {err['msg']}{shown}{more}"
+
+
+def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:
+    """Validate a recipe dict's own structure (not yet the plugins' params)."""
+    try:
+        return Recipe.model_validate(raw)
+    except ValidationError as exc:
+        raise RecipeError(f"{origin}: {_format_validation(exc, '')}") from exc
+
+
+def load_recipe(path_or_name: str | Path, overrides: Iterable[str] = ()) -> tuple[Recipe, Path]:
+    """Read, override and validate a recipe file. Returns the recipe and its path."""
+    path = find_recipe(path_or_name)
+    raw = apply_overrides(read_recipe_dict(path), overrides)
+    return parse_recipe(raw, str(path)), path
+
+
+@dataclass
+class Pipeline:
+    """A recipe's plugins, constructed and checked against each other."""
+
+    recipe: Recipe
+    plugins: dict[Kind, Plugin]
+    registry: PluginRegistry
+
+    @property
+    def source(self) -> Source:
+        return self.plugins["source"]  # type: ignore[return-value]
+
+    @property
+    def stages(self) -> list[Stage]:
+        """The processing stages, in run order."""
+        return [self.plugins[k] for k in STAGE_KINDS if k in self.plugins]  # type: ignore[misc]
+
+
+def build_pipeline(
+    recipe: Recipe, origin: str, registry: PluginRegistry | None = None, data: Path | None = None
+) -> Pipeline:
+    """Construct every plugin of ``recipe`` from its validated params and check them.
+
+    :param origin: the recipe's file name, for messages.
+    :param data: data root for relative paths (default :func:`slamfront.data.data_root`).
+    :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
+    :raises PluginError: a plugin is unknown or incompatible with another.
+    """
+    registry = registry or PluginRegistry()
+    for module in recipe.plugin_modules:
+        registry.register_module(module)
+    context = {"data_root": data or data_root()}
+    plugins: dict[Kind, Plugin] = {}
+    for kind, spec in recipe.stage_specs().items():
+        try:
+            info = registry.get(kind, spec.plugin)
+        except PluginError as exc:
+            raise PluginError(f"{origin}: {kind}.plugin: {exc}") from exc
+        try:
+            config = info.cls.Config.model_validate(spec.params, context=context)
+        except ValidationError as exc:
+            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
+        plugins[kind] = info.cls(config)
+    for kind, plugin in plugins.items():
+        missing = [need for need in getattr(plugin, "requires", ()) if need not in plugins]
+        if missing:
+            raise PluginError(
+                f"{origin}: {kind} plugin {plugin.name!r} needs a {' and a '.join(missing)} stage"
+            )
+        try:
+            plugin.check(plugins)
+        except PluginError as exc:
+            raise PluginError(f"{origin}: {kind}: {exc}") from exc
+    return Pipeline(recipe=recipe, plugins=plugins, registry=registry)
+
+

@@ -1,0 +1,91 @@
+"""The ``nearest_neighbour`` loop detector: brute-force search over all earlier frames."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from pydantic import Field
+
+from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.core.buffers import GrowingRows
+from slamfront.core.distances import to_one
+from slamfront.messages import Features, LoopResult
+
+
+class NearestNeighbour(LoopDetector):
+    """Single-image baseline: each query's best match is its nearest earlier frame.
+
+    Reference frames are stored; query frames are searched against them (and stream
+    frames against all frames older than ``exclude_recent``). The confidence is a
+    uniqueness score, ``1 - d_best / d_second``, where ``d_second`` is the best distance
+    outside ``uniqueness_window`` frames of the best match, so a match that is much
+    better than anywhere else is trusted more. ``threshold`` is the operating point.
+    """
+
+    name = "nearest_neighbour"
+    requires = ("descriptor",)
+
+    class Config(PluginConfig):
+        threshold: float = Field(0.2, ge=0, le=1, description="accept a match at this confidence or more")
+        uniqueness_window: int = Field(10, ge=0, description="frames around the best match ignored for d_second")
+        exclude_recent: int = Field(50, ge=0, description="stream mode: skip this many most recent frames")
+        candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
+
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        self._vectors: GrowingRows | None = None
+        self._frames: list[int] = []
+        self._n_reference = 0
+        self._n_query = 0
+        self._n_searches = 0
+        self._metric = "l2"
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        if not getattr(stages["descriptor"], "produces_global", False):
+            raise PluginError(f"needs a global descriptor; {stages['descriptor'].name!r} produces none")
+
+    def process(self, inputs: StageInputs) -> Sequence[LoopResult]:
+        features: Features = inputs.one("descriptor", Features)
+        if features.vector is None:
+            raise PluginError(f"descriptor gave no global vector for frame {features.frame}")
+        frame = inputs.frame
+        self._metric = features.metric
+        if self._vectors is None:
+            self._vectors = GrowingRows(len(features.vector))
+        result: list[LoopResult] = []
+        if frame.traversal in ("query", "stream"):
+            result.append(self._search(frame.index, features.vector, frame.traversal == "stream"))
+            self._n_query += 1
+        if frame.traversal in ("reference", "stream"):
+            self._vectors.append(features.vector)
+            self._frames.append(frame.index)
+            self._n_reference += 1
+        return result
+
+    def _search(self, frame: int, vector: np.ndarray, stream: bool) -> LoopResult:
+        usable = len(self._frames) - (self.config.exclude_recent if stream else 0)
+        if self._vectors is None or usable < 1:
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="map too small")
+        self._n_searches += 1
+        distances = to_one(vector, self._vectors.view[:usable], self._metric)  # type: ignore[arg-type]
+        order = np.argsort(distances, kind="stable")
+        best = int(order[0])
+        far = np.abs(np.arange(usable) - best) > self.config.uniqueness_window
+        second = float(distances[far].min()) if far.any() else float(distances[best]) * 2 + 1e-9
+        confidence = float(np.clip(1.0 - distances[best] / max(second, 1e-12), 0.0, 1.0))
+        frames = np.asarray(self._frames[:usable], dtype=np.int64)
+        return LoopResult(
+            frame=frame,
+            match=int(frames[best]),
+            confidence=confidence,
+            accepted=confidence >= self.config.threshold,
+            candidates=frames[order[: self.config.candidates]],
+        )
+
+    def statistics(self) -> dict[str, int]:
+        return {
+            "n_searches": self._n_searches,
+            "n_places_reference": self._n_reference,
+            "n_places_query": self._n_query,
+        }

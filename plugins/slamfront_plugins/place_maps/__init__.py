@@ -1,0 +1,1 @@
+"""Built-in place maps (none yet)."""

@@ -1,0 +1,10 @@
+"""Built-in sources."""
+
+from slamfront import hookimpl
+from slamfront_plugins.sources.image_folder import ImageFolder
+from slamfront_plugins.sources.synthetic import SyntheticWorld
+
+
+@hookimpl
+def slamfront_sources() -> list[type]:
+    return [SyntheticWorld, ImageFolder]

@@ -1,0 +1,140 @@
+"""The ``synthetic`` source: a procedural street world slamfront renders itself."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from functools import cached_property
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from slamfront import Camera, Frame, PluginConfig, Source
+from slamfront.core.loops import LoopGroundTruth
+from slamfront.frame import Traversal
+from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
+
+
+class SyntheticWorld(Source):
+    """A seeded 3-D street world rendered along a route that revisits its places.
+
+    ``mode: paired`` gives a reference traversal then a query traversal of the same
+    route (query frame i is at the place of reference frame i) under other
+    illumination, a small viewpoint offset and moving occluders. ``mode: stream`` drives
+    the route ``laps`` times in one stream; later laps revisit the first. Frames carry
+    RGB, depth, intrinsics and the ground-truth pose; everything is deterministic.
+    """
+
+    name = "synthetic"
+
+    class Config(PluginConfig):
+        seed: int = Field(0, description="world and noise seed")
+        mode: Literal["paired", "stream"] = Field("paired", description="two traversals, or one stream of laps")
+        frames_per_traversal: int = Field(400, ge=2, description="frames per traversal (or per lap)")
+        laps: int = Field(2, ge=1, description="laps driven in stream mode")
+        route_length_m: float = Field(400.0, gt=20, description="length of the closed street")
+        street_width_m: float = Field(10.0, gt=2)
+        image_width: int = Field(160, ge=16)
+        image_height: int = Field(120, ge=16)
+        fov_deg: float = Field(90.0, gt=10, lt=170, description="horizontal field of view")
+        speed_mps: float = Field(5.0, gt=0, description="driving speed (sets timestamps)")
+        reference_illumination: Illumination = "day"
+        query_illumination: Illumination = "dusk"
+        stream_illuminations: list[Illumination] = Field(
+            default_factory=lambda: ["day", "dusk"], description="illumination of each lap, cycled"
+        )
+        query_lateral_offset_m: float = Field(0.3, description="query camera moved left by this much")
+        query_yaw_offset_deg: float = Field(2.0, description="query camera turned left by this much")
+        reference_occluders: int = Field(0, ge=0)
+        query_occluders: int = Field(15, ge=0, description="moving people and vehicles in the query")
+        noise_std: float = Field(2.0, ge=0, description="sensor noise, grey levels")
+        max_depth_m: float = Field(40.0, gt=0, description="depth beyond this reads 0 (no return)")
+        tolerance: int = Field(3, ge=0, description="zeta: frames either side that still count as a match")
+        revisit_radius_m: float = Field(3.0, gt=0, description="stream mode: a revisit is this close")
+
+        @model_validator(mode="after")
+        def _lap_illuminations(self) -> SyntheticWorld.Config:
+            if not self.stream_illuminations:
+                raise ValueError("stream_illuminations needs at least one entry")
+            return self
+
+    @cached_property
+    def world(self) -> StreetWorld:
+        return StreetWorld(self.config.seed, self.config.route_length_m, self.config.street_width_m)
+
+    @property
+    def camera(self) -> Camera:
+        c = self.config
+        f = (c.image_width / 2) / np.tan(np.deg2rad(c.fov_deg) / 2)
+        return Camera(fx=f, fy=f, cx=(c.image_width - 1) / 2, cy=(c.image_height - 1) / 2,
+                      width=c.image_width, height=c.image_height)
+
+    @property
+    def step_m(self) -> float:
+        return self.config.route_length_m / self.config.frames_per_traversal
+
+    def _passes(self) -> list[tuple[Traversal, Illumination, float, float, int]]:
+        """(traversal, illumination, lateral offset, yaw offset, occluders) per pass."""
+        c = self.config
+        if c.mode == "paired":
+            return [
+                ("reference", c.reference_illumination, 0.0, 0.0, c.reference_occluders),
+                ("query", c.query_illumination, c.query_lateral_offset_m, c.query_yaw_offset_deg, c.query_occluders),
+            ]
+        passes = []
+        for lap in range(c.laps):
+            changed = lap % 2 == 1
+            passes.append((
+                "stream",
+                c.stream_illuminations[lap % len(c.stream_illuminations)],
+                c.query_lateral_offset_m if changed else 0.0,
+                c.query_yaw_offset_deg if changed else 0.0,
+                c.query_occluders if lap > 0 else c.reference_occluders,
+            ))
+        return passes
+
+    def __len__(self) -> int:
+        return self.config.frames_per_traversal * len(self._passes())
+
+    def frames(self) -> Iterator[Frame]:
+        c = self.config
+        camera = self.camera
+        n = c.frames_per_traversal
+        dt = self.step_m / c.speed_mps
+        index = 0
+        for pass_number, (traversal, illumination, lateral, yaw, occluders) in enumerate(self._passes()):
+            lighting = Lighting.of(illumination)
+            start_time = pass_number * (n * dt + 60.0)  # a minute between passes
+            for k in range(n):
+                along = k * self.step_m
+                pose = self.world.pose_at(along, lateral, yaw)
+                local_time = k * dt
+                image, depth = self.world.render(
+                    pose, camera.matrix, camera.width, camera.height, lighting,
+                    occluders_at(c.seed + pass_number, local_time, self.world.route, occluders),
+                    noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + index, max_depth_m=c.max_depth_m,
+                )
+                sequence_index = k if traversal != "stream" else index
+                yield Frame(
+                    index=index, timestamp=start_time + local_time, image=image, traversal=traversal,
+                    sequence_index=sequence_index, name=f"{traversal}-{sequence_index:05d}", depth=depth,
+                    camera=camera, pose=pose,
+                )
+                index += 1
+
+    def loop_ground_truth(self) -> LoopGroundTruth:
+        c = self.config
+        n = c.frames_per_traversal
+        if c.mode == "paired":
+            queries = np.arange(n, 2 * n)
+            return LoopGroundTruth.band(queries, queries - n, c.tolerance, valid=(0, n - 1))
+        # stream: a frame revisits every earlier-lap frame within the radius along the route
+        reach = int(np.floor(c.revisit_radius_m / self.step_m))
+        queries = np.arange(n * c.laps)
+        rows = []
+        for frame in queries:
+            lap, k = divmod(int(frame), n)
+            near = (k + np.arange(-reach, reach + 1)) % n
+            rows.append(np.sort(np.concatenate([earlier * n + near for earlier in range(lap)]))
+                        if lap else np.empty(0, dtype=np.int64))
+        return LoopGroundTruth.from_rows(queries, rows)

@@ -1,0 +1,115 @@
+"""The CLI: the happy paths and every user error (exit 2, one line, no traceback)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from slamfront.mcaplog.reader import read_messages, summarize
+from tests.conftest import small_synthetic_recipe
+
+
+def _one_line_error(code: int, err: str) -> str:
+    assert code == 2, err
+    lines = [line for line in err.strip().splitlines() if line]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    assert lines[0].startswith("slamfront: error: ")
+    return lines[0]
+
+
+def test_help_everywhere(cli) -> None:
+    for command in ([], ["run"], ["plugins"], ["inspect"], ["recipes"]):
+        with pytest.raises(SystemExit) as exit_info:
+            cli(*command, "--help")
+        assert exit_info.value.code == 0
+
+
+def test_run_inspect_json(cli, write_recipe, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    code, stdout, _ = cli("run", write_recipe(small_synthetic_recipe()), "-o", out, "-q")
+    assert code == 0 and "report:" in stdout
+    code, stdout, _ = cli("inspect", out / "run.mcap", "--json")
+    summary = json.loads(stdout)
+    topics = {t["topic"]: t for t in summary["topics"]}
+    assert topics["/loop_detector/loop_result"]["count"] == 40
+    assert summary["complete"] and summary["n_messages"] > 0 and summary["duration_s"] > 0
+
+
+def test_recipes_lists_shipped_ones(cli) -> None:
+    code, stdout, _ = cli("recipes")
+    assert code == 0 and stdout.startswith("demo") or "\ndemo " in stdout
+
+
+def test_missing_recipe_file(cli, tmp_path: Path) -> None:
+    line = _one_line_error(*cli("run", tmp_path / "nope.yaml")[::2])
+    assert "nope.yaml: no such recipe file" in line
+
+
+def test_unknown_plugin_suggests(cli, write_recipe) -> None:
+    code, _, err = cli("run", write_recipe(small_synthetic_recipe()), "--set", "descriptor.plugin=downsampeld")
+    line = _one_line_error(code, err)
+    assert "descriptor.plugin: unknown descriptor plugin 'downsampeld'; did you mean 'downsampled'?" in line
+
+
+def test_invalid_param(cli, write_recipe) -> None:
+    code, _, err = cli("run", write_recipe(small_synthetic_recipe()), "--set", "source.params.image_width=abc")
+    line = _one_line_error(code, err)
+    assert "recipe.yaml: source.params.image_width:" in line and "'abc'" in line
+
+
+def _folder_with_bad_image(tmp_path: Path, bad: bytes) -> Path:
+    folder = tmp_path / "images"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(6):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (folder / "003.png").write_bytes(bad)
+    return folder
+
+
+@pytest.mark.parametrize("bad", [b"not a png at all", b""], ids=["corrupt", "zero-size"])
+def test_unreadable_image_mid_run_keeps_the_log(cli, write_recipe, tmp_path: Path, bad: bytes) -> None:
+    folder = _folder_with_bad_image(tmp_path, bad)
+    recipe = small_synthetic_recipe()
+    recipe["source"] = {"plugin": "image_folder", "params": {"folder": str(folder)}}
+    recipe["loop_detector"]["params"] = {"exclude_recent": 1}
+    out = tmp_path / "out"
+    code, _, err = cli("run", write_recipe(recipe), "-o", out, "-q")
+    line = _one_line_error(code, err)
+    assert "003.png" in line
+    summary = summarize(out / "run.mcap")
+    assert summary.complete  # finalised although the run stopped
+    assert summary.topic("/frames").count == 3
+    last = [m.decoded for m in read_messages(out / "run.mcap", ["/log"])][-1]
+    assert "bad input after 3 frames" in last.message
+    assert not (out / "metrics.json").exists()
+
+
+def test_truncated_log(cli, write_recipe, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    # small chunks, so a cut two thirds in leaves complete chunks before it
+    cli("run", write_recipe(small_synthetic_recipe()), "-o", out, "-q", "--set", "log.chunk_size=8192")
+    data = (out / "run.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    code, stdout, err = cli("inspect", cut)
+    line = _one_line_error(code, err)
+    assert "cut.mcap" in line and "truncated" in line
+    assert "INCOMPLETE" in stdout and "/frames" in stdout
+
+
+def test_not_an_mcap_file(cli, tmp_path: Path) -> None:
+    path = tmp_path / "x.mcap"
+    path.write_text("hello")
+    line = _one_line_error(*cli("inspect", path)[::2])
+    assert "x.mcap: not an MCAP file" in line
+
+
+def test_missing_log(cli, tmp_path: Path) -> None:
+    line = _one_line_error(*cli("inspect", tmp_path / "none.mcap")[::2])
+    assert "none.mcap: no such log file" in line

@@ -1,0 +1,53 @@
+"""Messages round-trip bit-exactly through their JSON encoding."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from slamfront.messages import Features, FrameInfo, LoopResult, RunMetrics, decode_any, message_class
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8, np.int64, np.int16, ">f4"])
+def test_arrays_round_trip_bit_exactly(dtype: str) -> None:
+    rng = np.random.default_rng(1)
+    array = (rng.normal(size=(7, 5)) * 100).astype(dtype)
+    message = Features(frame=3, keypoints=array[:, :2].copy(), descriptors=array, metric="l2")
+    back = Features.from_json(message.to_json())
+    assert back.descriptors.dtype == array.dtype
+    assert back.descriptors.shape == array.shape
+    assert back.descriptors.tobytes() == array.tobytes()
+    assert back.same_as(message)
+
+
+def test_special_floats_and_none_round_trip() -> None:
+    message = LoopResult(frame=1, match=-1, confidence=float("nan"), accepted=False, reason="no answer")
+    text = message.to_json()
+    json.loads(text)  # strict JSON: no bare NaN
+    back = LoopResult.from_json(text)
+    assert math.isnan(back.confidence) and back.candidates is None and back.reason == "no answer"
+    inf = LoopResult.from_json(LoopResult(frame=1, match=2, confidence=float("-inf"), accepted=True).to_json())
+    assert inf.confidence == float("-inf")
+
+
+def test_nan_and_negative_zero_bits_survive_inside_arrays() -> None:
+    array = np.array([np.nan, -0.0, np.inf, 1e-310], dtype=np.float64)
+    back = Features.from_json(Features(frame=0, vector=array).to_json())
+    assert back.vector.tobytes() == array.tobytes()
+
+
+def test_decode_without_the_class_gives_arrays() -> None:
+    pose = np.arange(16, dtype=np.float64).reshape(4, 4)
+    info = FrameInfo(frame=0, timestamp=0.5, traversal="stream", sequence_index=0, name="a", width=2, height=2, pose=pose)
+    raw = decode_any(info.to_json())
+    assert np.array_equal(raw["pose"], pose)
+
+
+def test_schema_lists_every_field_and_lookup_by_name() -> None:
+    schema = LoopResult.json_schema()
+    assert set(schema["properties"]) == {"frame", "match", "confidence", "accepted", "candidates", "reason"}
+    assert schema["title"] == "slamfront.LoopResult"
+    assert message_class("slamfront.RunMetrics") is RunMetrics

@@ -1,0 +1,29 @@
+"""Every shipped recipe validates and runs on its first few frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from slamfront.mcaplog.reader import summarize
+from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
+from slamfront.runtime import run_pipeline
+
+RECIPES = sorted(recipes_dir().glob("*.yaml"))
+
+
+def test_there_are_recipes() -> None:
+    assert (recipes_dir() / "demo.yaml") in RECIPES
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=[p.stem for p in RECIPES])
+def test_recipe_validates_and_smoke_runs(path: Path, tmp_path: Path, shared_data: Path) -> None:
+    recipe, _ = load_recipe(path)
+    assert recipe.description, f"{path.name} needs a description (shown by `slamfront recipes`)"
+    pipeline = build_pipeline(recipe, str(path))
+    result = run_pipeline(pipeline, str(path), tmp_path, progress=False, max_frames=12)
+    assert summarize(result.log_path).complete
+    for kind in pipeline.plugins:
+        if kind != "source":
+            assert kind in result.metrics["timing"]
