@@ -15,7 +15,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import best_of, publish, table  # noqa: E402
-
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402
 from slamfront.runtime import run_pipeline  # noqa: E402
 from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402
@@ -28,7 +27,7 @@ def render_rates() -> list[list[object]]:
         source = SyntheticWorld(SyntheticWorld.Config(frames_per_traversal=40, image_width=width, image_height=height))
         frames = source.frames()
         next(frames)  # build the world outside the timing
-        seconds = best_of(1, lambda: [next(frames) for _ in range(30)])
+        seconds = best_of(1, lambda frames=frames: [next(frames) for _ in range(30)])
         rate = 30 / seconds
         base = base or rate
         rows.append([f"{width}x{height}", rate, 1000 / rate, base / rate])

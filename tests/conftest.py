@@ -7,7 +7,6 @@ from typing import Any
 
 import pytest
 import yaml
-
 from slamfront.cli import main
 from slamfront.data import data_root
 
@@ -30,19 +29,6 @@ def cli(capsys: pytest.CaptureFixture[str]):
         return code, captured.out, captured.err
 
     return invoke
-
-
-def small_synthetic_recipe(**source_params: Any) -> dict[str, Any]:
-    """A recipe dict for a quick synthetic run (few, small frames)."""
-    params = {"frames_per_traversal": 40, "route_length_m": 80, "image_width": 64, "image_height": 48}
-    params.update(source_params)
-    return {
-        "name": "small",
-        "source": {"plugin": "synthetic", "params": params},
-        "descriptor": {"plugin": "downsampled", "params": {"width": 16, "height": 16}},
-        "loop_detector": {"plugin": "nearest_neighbour", "params": {}},
-        "eval": {"plots": False},
-    }
 
 
 @pytest.fixture

@@ -8,9 +8,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from slamfront.mcaplog.reader import read_messages, summarize
-from tests.conftest import small_synthetic_recipe
+
+from tests.helpers import small_synthetic_recipe
 
 
 def _one_line_error(code: int, err: str) -> str:

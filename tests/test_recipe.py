@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from slamfront.data import data_root
 from slamfront.errors import PluginError, RecipeError
 from slamfront.recipe import apply_overrides, build_pipeline, load_recipe, parse_recipe, recipes_dir
-from tests.conftest import small_synthetic_recipe
+
+from tests.helpers import small_synthetic_recipe
 
 
 def test_overrides_parse_values_as_yaml() -> None:

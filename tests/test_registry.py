@@ -6,7 +6,6 @@ import json
 import types
 
 import pytest
-
 import slamfront
 from slamfront.errors import PluginError
 from slamfront.plugin import KINDS

@@ -6,9 +6,8 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-from pydantic import Field
-
 import slamfront
+from pydantic import Field
 from slamfront.messages import Features
 
 

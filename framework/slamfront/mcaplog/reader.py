@@ -187,7 +187,7 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
     attachments: list[str] = []
     complete, problem, position = False, None, 0
     try:
-        for record, position in _records(path, stream):
+        for record, position in _records(path, stream):  # noqa: B007 (read after a failure)
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel) and record.id not in topics:
@@ -238,7 +238,7 @@ def read_messages(
         channels: dict[int, Channel] = {}
         position = 0
         try:
-            for record, position in _records(path, stream):
+            for record, position in _records(path, stream):  # noqa: B007 (read after a failure)  # noqa: B007 (read after a failure)
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel):

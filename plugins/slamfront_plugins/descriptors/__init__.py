@@ -1,6 +1,7 @@
 """Built-in descriptors."""
 
 from slamfront import hookimpl
+
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 
 

@@ -1,6 +1,7 @@
 """Built-in loop detectors."""
 
 from slamfront import hookimpl
+
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 
 

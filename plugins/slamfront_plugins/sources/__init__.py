@@ -1,6 +1,7 @@
 """Built-in sources."""
 
 from slamfront import hookimpl
+
 from slamfront_plugins.sources.image_folder import ImageFolder
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 
