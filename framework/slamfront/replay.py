@@ -165,9 +165,13 @@ def plan_replay(
     for kind in kinds:
         if STAGE_KINDS.index(kind) < start and getattr(wanted, kind) is not None:
             if not _same_stage(kind, getattr(wanted, kind), getattr(original, kind), registry):
+                remedy = (
+                    f"it reads the frames' pixels and {problem}, so only a new run can change it"
+                    if problem and reads_pixels(kind) else f"replay --from {kind} (or earlier) to run it again"
+                )
                 raise RecipeError(
                     f"{recipe_origin}: {kind} differs from the log's, but stages before --from {from_kind} are read "
-                    f"from the log; replay --from {kind} (or earlier) to run it again"
+                    f"from the log; {remedy}"
                 )
     pixel_stages = [k for k in rerun if reads_pixels(k)]
     if pixel_stages and problem:

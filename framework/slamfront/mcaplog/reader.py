@@ -18,7 +18,7 @@ from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.scan import RecordScanner, ScanState
+from slamfront.mcaplog.scan import MAGIC, RecordScanner, ScanState
 from slamfront.messages import decode_any, message_class
 
 # A damaged summary section fails in many layers (record parsing, struct, CRC checks);
@@ -122,11 +122,24 @@ def _open(path: Path) -> Any:
         raise LogError(f"{path}: cannot read log: {exc.strerror or exc}") from exc
 
 
-def _check_magic(path: Path, stream: Any) -> None:
-    head = stream.read(8)
+def check_magic(path: Path, stream: Any) -> None:
+    head = stream.read(len(MAGIC))
     stream.seek(0)
-    if head != b"\x89MCAP0\r\n":
+    if head != MAGIC:
+        if MAGIC.startswith(head):
+            raise LogError(f"{path}: too short to be an MCAP log ({len(head)} bytes): nothing can be read from it")
         raise LogError(f"{path}: not an MCAP file (bad magic bytes)")
+
+
+def _ends_with_magic(stream: Any) -> bool:
+    stream.seek(0, 2)
+    if stream.tell() < 2 * len(MAGIC):
+        stream.seek(0)
+        return False
+    stream.seek(-len(MAGIC), 2)
+    tail = stream.read(len(MAGIC))
+    stream.seek(0)
+    return tail == MAGIC
 
 
 def summarize(path: Path | str) -> LogSummary:
@@ -136,13 +149,14 @@ def summarize(path: Path | str) -> LogSummary:
     """
     path = Path(path)
     with _open(path) as stream:
-        _check_magic(path, stream)
+        check_magic(path, stream)
         size = path.stat().st_size
         try:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-            if summary is not None and summary.statistics is not None:
-                return _from_summary(path, size, reader, summary)
+            if _ends_with_magic(stream):
+                reader = make_reader(stream)
+                summary = reader.get_summary()
+                if summary is not None and summary.statistics is not None:
+                    return _from_summary(path, size, reader, summary)
         except _READ_ERRORS:
             pass  # no usable summary section: fall back to a scan
         stream.seek(0)
@@ -204,7 +218,8 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
         elif isinstance(record, Attachment):
             attachments.append(record.name)
     state = scanner.state
-    problem = _describe_damage(state) if state.problems or not state.complete else None
+    lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
+    problem = _describe_damage(state, max(lasts) if lasts else None) if state.problems or not state.complete else None
     return LogSummary(
         str(path), size, list(topics.values()), complete=state.complete and not state.problems,
         problem=problem, metadata=metadata, attachments=attachments,
@@ -212,11 +227,13 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
     )
 
 
-def _describe_damage(state: ScanState) -> str:
+def _describe_damage(state: ScanState, last_ns: int | None = None) -> str:
     lost = state.size - state.data_end
     text = "; ".join(state.problems) if state.problems else "no footer"
     if lost > 0:
         text += f"; {lost} of {state.size} bytes ({100 * lost / max(state.size, 1):.1f} %) could not be read"
+        if last_ns is not None:
+            text += f": what was logged after {last_ns / 1e9:.3f} s (log time) is lost"
     if state.salvaged_messages:
         text += f"; {state.salvaged_messages} messages recovered from the incomplete chunk"
     return text
@@ -234,7 +251,7 @@ def read_messages(
     path = Path(path)
     wanted = set(topics) if topics is not None else None
     with _open(path) as stream:
-        _check_magic(path, stream)
+        check_magic(path, stream)
         scanner = RecordScanner(stream, path.stat().st_size)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
@@ -275,7 +292,7 @@ def read_attachment(path: Path | str, name: str) -> bytes:
     """
     path = Path(path)
     with _open(path) as stream:
-        _check_magic(path, stream)
+        check_magic(path, stream)
         scanner = RecordScanner(stream, path.stat().st_size)
         for record in scanner.records():
             if isinstance(record, Attachment) and record.name == name:

@@ -111,6 +111,8 @@ class RecordScanner:
             state.data_end = offset + _RECORD_HEAD.size + length
             if opcode == Opcode.FOOTER:
                 state.complete = True
+                if self._stream.read(len(MAGIC)) != MAGIC:
+                    state.problems.append("the file ends inside its closing magic bytes")
                 yield Footer.read(_reader(content))
                 return
             if in_summary:

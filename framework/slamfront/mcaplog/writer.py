@@ -92,7 +92,8 @@ class RunLogWriter:
             if known_schema != schema_name:
                 raise LogError(f"{self.path}: topic {topic} carries {known_schema}, cannot write {schema_name} to it")
             return channel_id
-        schema_id = self._schema(schema_name, schema_encoding, schema_data)
+        # schema id 0 is MCAP's "no schema" (only met when copying a foreign log)
+        schema_id = self._schema(schema_name, schema_encoding, schema_data) if schema_name or schema_encoding else 0
         channel_id = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
         return channel_id
@@ -170,15 +171,18 @@ class RunLogWriter:
         with self._critical():
             self._writer.add_metadata(name, {k: str(v) for k, v in values.items()})
 
-    def add_attachment(self, name: str, media_type: str, data: bytes, log_time_ns: int = 0) -> None:
+    def add_attachment(
+        self, name: str, media_type: str, data: bytes, log_time_ns: int = 0, create_time_ns: int | None = None
+    ) -> None:
         """A file stored inside the log, e.g. the resolved recipe.
 
-        ``log_time_ns`` defaults to 0 so two runs of one recipe store identical records.
+        Times default to 0 so two runs of one recipe store identical records.
         """
         self._check_open()
+        created = log_time_ns if create_time_ns is None else create_time_ns
         with self._critical():
             self._writer.add_attachment(
-                create_time=log_time_ns, log_time=log_time_ns, name=name, media_type=media_type, data=data
+                create_time=created, log_time=log_time_ns, name=name, media_type=media_type, data=data
             )
 
     # -- durability ----------------------------------------------------------------------
