@@ -184,3 +184,31 @@ def test_periodic_sync_closes_chunks(tmp_path: Path) -> None:
     assert result.metrics["log_syncs"] > 10
     assert len(_messages_in_complete_chunks(result.log_path)) > 10
     assert validate_log(result.log_path).valid
+
+
+def test_a_damaged_chunk_is_skipped_and_reading_goes_on(small_chunked_log: Path, tmp_path: Path, cli) -> None:
+    chunks = _messages_in_complete_chunks(small_chunked_log)
+    data = bytearray(small_chunked_log.read_bytes())
+    (second_end, second_count), (third_end, _) = chunks[1], chunks[2]
+    data[second_end - 100] ^= 0xFF  # a flipped bit inside the second chunk's data
+    cut = tmp_path / "damaged.mcap"
+    cut.write_bytes(bytes(data[:third_end + 10]))  # and the file ends just after the third chunk
+    summary = summarize(cut)
+    assert "chunk at byte" in summary.problem and not summary.complete
+    recover_log(cut, tmp_path / "fixed.mcap")
+    original = [m.data for m in read_messages(small_chunked_log)]
+    *kept, _note = [m.data for m in read_messages(tmp_path / "fixed.mcap")]
+    first, third = chunks[0][1], chunks[2][1]
+    # the third chunk's messages are kept, except those on channels the lost chunk introduced
+    after = original[first + second_count : first + second_count + third]
+    assert kept[:first] == original[:first] and first < len(kept) <= first + third
+    assert all(message in after for message in kept[first:])
+
+    whole = tmp_path / "damaged_whole.mcap"
+    whole.write_bytes(bytes(data))  # the summary is intact: it knows every channel
+    code, stdout, _ = cli("inspect", whole, "--validate")  # only reading every chunk finds the damage
+    assert code == 2 and "INVALID" in stdout and "damaged chunk at byte" in stdout
+    recovery = recover_log(whole, tmp_path / "fixed_whole.mcap")
+    *kept, _note = [m.data for m in read_messages(tmp_path / "fixed_whole.mcap")]
+    assert recovery.messages == len(kept) == len(original) - second_count
+    assert kept == original[:first] + original[first + second_count :]

@@ -151,7 +151,6 @@ class SourceFeed(FrameFeed):
     def __init__(self, source: Source, options: LogOptions) -> None:
         self._source = source
         self._options = options
-        self._logger: FrameLogger | None = None
 
     @property
     def source(self) -> Source:
@@ -168,6 +167,4 @@ class SourceFeed(FrameFeed):
             yield FrameStep(frame)
 
     def log_frame(self, log: RunLogWriter, step: FrameStep) -> FrameInfo:
-        if self._logger is None or self._logger.log is not log:
-            self._logger = FrameLogger(log, self._options)
-        return self._logger.write(step.frame)
+        return FrameLogger(log, self._options).write(step.frame)

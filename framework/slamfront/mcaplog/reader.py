@@ -219,7 +219,7 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
             attachments.append(record.name)
     state = scanner.state
     lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
-    problem = _describe_damage(state, max(lasts) if lasts else None) if state.problems or not state.complete else None
+    problem = describe_damage(state, max(lasts) if lasts else None) if state.problems or not state.complete else None
     return LogSummary(
         str(path), size, list(topics.values()), complete=state.complete and not state.problems,
         problem=problem, metadata=metadata, attachments=attachments,
@@ -227,10 +227,11 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
     )
 
 
-def _describe_damage(state: ScanState, last_ns: int | None = None) -> str:
+def describe_damage(state: ScanState, last_ns: int | None = None) -> str:
+    """What a scan could not read, in words."""
     lost = state.size - state.data_end
     text = "; ".join(state.problems) if state.problems else "no footer"
-    if lost > 0:
+    if lost > 0 and not state.data_ended:
         text += f"; {lost} of {state.size} bytes ({100 * lost / max(state.size, 1):.1f} %) could not be read"
         if last_ns is not None:
             text += f": what was logged after {last_ns / 1e9:.3f} s (log time) is lost"
@@ -281,8 +282,8 @@ def read_messages(
                 data_ended = True
                 break
         state = scanner.state
-        if strict and not data_ended:
-            raise LogError(f"{path}: {_describe_damage(state)}")
+        if strict and (state.problems or not data_ended):
+            raise LogError(f"{path}: {describe_damage(state)}")
 
 
 def read_attachment(path: Path | str, name: str) -> bytes:
@@ -298,5 +299,5 @@ def read_attachment(path: Path | str, name: str) -> bytes:
             if isinstance(record, Attachment) and record.name == name:
                 return bytes(record.data)
         if scanner.state.problems:
-            raise LogError(f"{path}: no attachment {name!r} in the readable part ({_describe_damage(scanner.state)})")
+            raise LogError(f"{path}: no attachment {name!r} in the readable part ({describe_damage(scanner.state)})")
     raise LogError(f"{path}: the log has no attachment {name!r}")

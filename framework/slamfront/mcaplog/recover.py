@@ -16,7 +16,7 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from slamfront.errors import LogError
 from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.reader import check_magic
+from slamfront.mcaplog.reader import check_magic, describe_damage
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.topics import LOG_TOPIC
 from slamfront.mcaplog.writer import RunLogWriter
@@ -88,18 +88,17 @@ def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_siz
                     counts["attachments"] += 1
             state = scanner.state
             complete = state.complete and not state.problems
-            problem = None if complete else "; ".join(state.problems) or "no footer"
+            problem = None if complete else describe_damage(state, last_time or None)
             if not complete:
-                lost = state.size - state.data_end
+                ended = "" if state.data_ended else "; how the run ended was not recorded"
                 text = (
-                    f"log recovered by slamfront recover from {source.name}: {counts['messages']} messages kept "
-                    f"({state.salvaged_messages} from an incomplete chunk); {lost} bytes at its end were unreadable "
-                    f"({problem}); how the run ended was not recorded"
+                    f"log recovered by slamfront recover from {source.name}: {counts['messages']} messages kept; "
+                    f"lost: {problem}{ended}"
                 )
                 log.add_metadata(
                     "recovery",
                     {"source": str(source), "problem": problem, "messages_kept": counts["messages"],
-                     "salvaged_messages": state.salvaged_messages, "unreadable_bytes": lost},
+                     "salvaged_messages": state.salvaged_messages},
                 )
                 log.write_foxglove(LOG_TOPIC, foxglove.log_line(text, last_time, "warning"), last_time)
     return Recovery(

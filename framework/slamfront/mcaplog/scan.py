@@ -22,6 +22,7 @@ import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import (
     Attachment,
     Channel,
@@ -58,6 +59,8 @@ class ScanState:
     size: int
     complete: bool = False
     """The footer was reached: the file was finalised."""
+    data_ended: bool = False
+    """The data section's end was reached: every message record was seen."""
     data_end: int = 8
     """Byte offset just after the last record read in full."""
     problems: list[str] = field(default_factory=list)
@@ -78,8 +81,13 @@ class RecordScanner:
         self.state = ScanState(size=size)
 
     def records(self) -> Iterator[McapRecord]:
-        """Header, schemas, channels, messages, metadata, attachments, data end, footer."""
+        """Header, schemas, channels, messages, metadata, attachments, data end, footer.
+
+        When the summary section is intact, its schemas and channels come first: a
+        damaged chunk then does not take the channels it introduced with it.
+        """
         state = self.state
+        yield from self._summary_channels()
         if self._stream.read(8) != MAGIC:
             state.problems.append("not an MCAP file (bad magic bytes)")
             return
@@ -127,8 +135,21 @@ class RecordScanner:
                 except Exception as exc:  # noqa: BLE001 (a damaged record of any kind)
                     state.problems.append(f"damaged {_name(opcode)} record at byte {offset} skipped ({exc})")
                     continue
-                in_summary = opcode == Opcode.DATA_END
+                in_summary = state.data_ended = opcode == Opcode.DATA_END
                 yield record
+
+    def _summary_channels(self) -> Iterator[McapRecord]:
+        try:
+            self._stream.seek(-len(MAGIC), io.SEEK_END)
+            if self._stream.read(len(MAGIC)) == MAGIC:
+                self._stream.seek(0)
+                summary = make_reader(self._stream).get_summary()
+                if summary is not None:
+                    yield from summary.schemas.values()
+                    yield from summary.channels.values()
+        except Exception:  # noqa: BLE001 (no usable summary: the data section has to do)
+            pass
+        self._stream.seek(0)
 
     def _chunk(self, offset: int, content: bytes) -> Iterator[McapRecord]:
         try:

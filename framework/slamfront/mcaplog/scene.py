@@ -3,9 +3,10 @@
 The scene is a ``foxglove.SceneUpdate`` on ``/scene/map`` (frame ``map``) holding the
 ground-truth path of each traversal and a line from every accepted loop closure's query
 pose to its match's pose. Each update holds the whole scene so far, so Foxglove shows
-it completely after a seek; updates are written every ``every`` frames and at the end,
-and the path is thinned to at most ``max_points`` points per traversal, which keeps the
-topic small on long runs.
+it completely after a seek. Updates are written every ``every`` frames, less often as a
+run grows (never more often than every 1/32 of the frames so far, so a long run writes
+O(log n) updates, not O(n)), and at the end; the path is thinned to at most
+``max_points`` points per traversal. That keeps the topic small on long runs.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class SceneLogger:
         self._path: dict[str, list[np.ndarray]] = {}
         self._loops: list[tuple[int, int]] = []
         self._frames_seen = 0
+        self._next_write = every
         self._dirty = False
 
     def observe(self, kind: str, message: Message) -> None:
@@ -52,8 +54,9 @@ class SceneLogger:
                 self._dirty = True
 
     def after_frame(self, log: RunLogWriter, stamp_ns: int) -> None:
-        """Called after each frame; writes an update every ``every`` frames."""
-        if self._frames_seen % self.every == 0:
+        """Called after each frame; writes an update when one is due."""
+        if self._frames_seen >= self._next_write:
+            self._next_write = self._frames_seen + max(self.every, self._frames_seen // 32)
             self.write(log, stamp_ns)
 
     def write(self, log: RunLogWriter, stamp_ns: int) -> None:
