@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from slamfront.mcaplog.reader import summarize
 from slamfront.mcaplog.validate import validate_log
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir

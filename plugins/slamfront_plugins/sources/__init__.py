@@ -1,11 +1,11 @@
 """Built-in sources."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.sources.image_folder import ImageFolder
+from slamfront_plugins.sources.rgbd import RgbdFolder, TumRgbd
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 
 
 @hookimpl
 def slamfront_sources() -> list[type]:
-    return [SyntheticWorld, ImageFolder]
+    return [SyntheticWorld, ImageFolder, RgbdFolder, TumRgbd]
