@@ -19,6 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import publish, table  # noqa: E402
+
 from slamfront.mcaplog.diff import diff_logs  # noqa: E402
 from slamfront.mcaplog.reader import summarize  # noqa: E402
 from slamfront.mcaplog.recover import recover_log  # noqa: E402

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
+
 from slamfront.mcaplog.reader import read_messages
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.writer import RunLogWriter

@@ -15,6 +15,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader, breakup_chunk
+
 from slamfront.interrupts import Interrupts, RunInterrupted
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.recover import recover_log
@@ -22,7 +23,6 @@ from slamfront.mcaplog.validate import validate_log
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
-
 from tests.helpers import small_synthetic_recipe
 
 

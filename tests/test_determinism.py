@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront.cli import main
 from slamfront.mcaplog.diff import diff_logs
 from slamfront.messages import Features, LoopResult
-
 from tests.helpers import rewrite_log, small_synthetic_recipe
 
 

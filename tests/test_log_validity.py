@@ -7,12 +7,12 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+
 from slamfront.data import checkout_root
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.validate import foxglove_message_types, validate_log
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import RunResult, run_pipeline
-
 from tests.helpers import rewrite_log, small_synthetic_recipe
 
 LAYOUT = checkout_root() / "foxglove" / "slamfront-layout.json"

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from slamfront.errors import LogError, PluginError, RecipeError
 from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
@@ -16,7 +17,6 @@ from slamfront.replay import RecordedStage, log_recipe, replay_log
 from slamfront.runtime import RunResult, run_pipeline
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
-
 from tests.helpers import rewrite_log, small_synthetic_recipe, stage_topic_bytes
 
 # The pipelines whose replay must reproduce the original run bit for bit. Each entry is
