@@ -60,10 +60,6 @@ __all__ = [
     "METRICS_TOPIC", "TF_TOPIC", "RunInterrupted", "RunResult", "execute_run", "run_pipeline", "topic_for",
 ]
 
-VOLATILE_METRICS = ("seconds", "frames_per_second", "timing")
-"""Metrics that measure the machine, not the method: they differ between identical runs."""
-
-
 @dataclass
 class RunResult:
     """Where a run wrote its outputs, and its metrics."""
