@@ -380,10 +380,7 @@ class ReplayFeed(FrameFeed):
 
     def log_frame(self, log: RunLogWriter, step: FrameStep) -> FrameInfo:
         for logged in step.logged:
-            log.write_raw(
-                logged.topic, logged.schema_name, logged.schema_encoding, logged.schema_data,
-                logged.message_encoding, logged.data, logged.log_time_ns, logged.publish_time_ns,
-            )
+            log.copy(logged)
         return step.logged[0].decoded
 
     def recorded_finish(self) -> dict[str, list[LoggedMessage]]:

@@ -166,10 +166,7 @@ def _copy_recorded(
     """Copy a recorded stage's messages unchanged; return its outputs (the JSON ones)."""
     outputs = []
     for logged in recorded:
-        log.write_raw(
-            logged.topic, logged.schema_name, logged.schema_encoding, logged.schema_data,
-            logged.message_encoding, logged.data, logged.log_time_ns, logged.publish_time_ns,
-        )
+        log.copy(logged)
         if logged.message_encoding == "json":
             message = logged.decoded
             outputs.append(message)

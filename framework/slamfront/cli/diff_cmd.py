@@ -8,6 +8,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from slamfront.mcaplog.diff import DEFAULT_IGNORED_TOPICS, diff_logs
+from slamfront.mcaplog.reader import log_file
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -30,12 +31,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
-def _log_path(path: Path) -> Path:
-    return path / "run.mcap" if path.is_dir() else path
-
-
 def run(args: argparse.Namespace) -> int:
-    a, b = _log_path(args.log_a), _log_path(args.log_b)
+    a, b = log_file(args.log_a), log_file(args.log_b)
     result = diff_logs(a, b, ignore=args.ignore, strict=args.strict)
     if args.json:
         print(json.dumps({

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LogSummary, read_attachment, summarize
+from slamfront.mcaplog.reader import LogSummary, log_file, read_attachment, summarize
 from slamfront.mcaplog.validate import validate_log
 
 
@@ -26,7 +26,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = args.log / "run.mcap" if args.log.is_dir() else args.log
+    path = log_file(args.log)
     if args.recipe:
         print(read_attachment(path, "recipe.yaml").decode(), end="")
         return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slamfront.mcaplog.reader import log_file
 from slamfront.mcaplog.recover import recover_log
 
 
@@ -23,8 +24,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = args.out / "run.mcap" if args.out.is_dir() else args.out
-    recovery = recover_log(args.log, out)
+    recovery = recover_log(log_file(args.log), log_file(args.out))
     kept = (
         f"{recovery.messages} messages on {recovery.topics} topics, {recovery.metadata} metadata records, "
         f"{recovery.attachments} attachments"

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from slamfront.cli.run_cmd import print_outcome
+from slamfront.mcaplog.reader import log_file
 from slamfront.plugin import STAGE_KINDS
 from slamfront.recipe import apply_overrides, load_recipe, parse_recipe
 from slamfront.replay import log_recipe, replay_log
@@ -37,7 +38,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    log = args.log / "run.mcap" if args.log.is_dir() else args.log
+    log = log_file(args.log)
     recipe, origin = None, None
     if args.recipe:
         recipe, path = load_recipe(args.recipe, args.overrides)

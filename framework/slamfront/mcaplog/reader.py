@@ -142,6 +142,12 @@ def _ends_with_magic(stream: Any) -> bool:
     return tail == MAGIC
 
 
+def log_file(path: Path | str) -> Path:
+    """A log path as users give it: a run folder stands for the ``run.mcap`` inside it."""
+    path = Path(path)
+    return path / "run.mcap" if path.is_dir() else path
+
+
 def summarize(path: Path | str) -> LogSummary:
     """Summarise a log; never raises on truncation (see :attr:`LogSummary.complete`).
 

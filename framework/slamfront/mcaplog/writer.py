@@ -27,6 +27,7 @@ from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
 from slamfront.errors import LogError
+from slamfront.mcaplog.reader import LoggedMessage
 from slamfront.messages import Message
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -164,6 +165,13 @@ class RunLogWriter:
         with self._critical():
             channel = self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
             self._add(channel, log_time_ns, data, publish_time_ns)
+
+    def copy(self, message: LoggedMessage) -> None:
+        """Copy a message read from another log (:func:`~slamfront.mcaplog.reader.read_messages`)."""
+        self.write_raw(
+            message.topic, message.schema_name, message.schema_encoding, message.schema_data,
+            message.message_encoding, message.data, message.log_time_ns, message.publish_time_ns,
+        )
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
         """A metadata record (string key/values), e.g. the run's versions."""
