@@ -82,6 +82,7 @@ class ReplayPlan:
     needs_pixels: bool
     """Some re-run stage reads pixels: images (and depth) are decoded from the log."""
     summary: LogSummary
+    registry: PluginRegistry
 
 
 def _pixels_problem(original: Recipe, first: FrameInfo | None) -> str | None:
@@ -111,6 +112,17 @@ def _same_stage(kind: str, a: StageSpec | None, b: StageSpec | None, registry: P
         ).model_dump(mode="json")
     except Exception:  # noqa: BLE001 (unknown plugin or invalid params: compare as written)
         return a.params == b.params
+
+
+def _earliest_replayable(log: Path, kinds: list[str], pixel_readers: list[str], problem: str | None) -> str:
+    """The first stage after the last one that reads pixels the log does not keep exactly."""
+    later = kinds[kinds.index(pixel_readers[-1]) + 1 :] if problem and pixel_readers else kinds
+    if not later:
+        raise LogError(
+            f"{log}: every stage of the recipe needs the frames' pixels and {problem}; "
+            "re-run the recipe instead (`slamfront inspect LOG --recipe` prints it)"
+        )
+    return later[0]
 
 
 def plan_replay(
@@ -147,14 +159,7 @@ def plan_replay(
         return spec is not None and bool(getattr(registry.get(kind, spec.plugin).cls, "reads_pixels", False))
 
     if from_kind is None:
-        needing = [k for k in kinds if reads_pixels(k)] if problem else []
-        later = kinds[kinds.index(needing[-1]) + 1 :] if needing else kinds
-        if not later:
-            raise LogError(
-                f"{log}: every stage of the recipe needs the frames' pixels and {problem}; "
-                "re-run the recipe instead (`slamfront inspect LOG --recipe` prints it)"
-            )
-        from_kind = later[0]
+        from_kind = _earliest_replayable(log, kinds, [k for k in kinds if reads_pixels(k)], problem)
     if from_kind not in STAGE_KINDS:
         raise RecipeError(f"--from {from_kind}: not a stage kind; stages are {', '.join(STAGE_KINDS)}")
     if getattr(wanted, from_kind) is None:
@@ -188,7 +193,7 @@ def plan_replay(
     effective = parse_recipe(merged, recipe_origin)
     return ReplayPlan(
         log=log, original=original, recipe=effective, from_kind=from_kind, recorded=recorded, rerun=rerun,
-        needs_pixels=bool(pixel_stages), summary=summary,
+        needs_pixels=bool(pixel_stages), summary=summary, registry=registry,
     )
 
 
@@ -422,7 +427,7 @@ def replay_log(
     origin = recipe_origin or f"{log}:{RECIPE_ATTACHMENT}"
     plan = plan_replay(log, recipe, origin, from_kind)
     source = RecordedSource(plan)
-    pipeline = build_pipeline(plan.recipe, origin, source=source)
+    pipeline = build_pipeline(plan.recipe, origin, registry=plan.registry, source=source)
     feed = ReplayFeed(plan, source)
     metadata = {
         "replay": {
