@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from slamfront.data import checkout_root, data_root
 from slamfront.errors import PluginError, RecipeError
-from slamfront.plugin import STAGE_KINDS, Kind, Plugin, Source, Stage
+from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 
 
@@ -196,6 +196,33 @@ class Pipeline:
         return [self.plugins[k] for k in STAGE_KINDS if k in self.plugins]  # type: ignore[misc]
 
 
+def validate_stage_params(
+    recipe: Recipe, origin: str, registry: PluginRegistry, data: Path | None = None
+) -> dict[Kind, tuple[type[Plugin], PluginConfig]]:
+    """Find every stage's plugin class and validate its params, constructing nothing.
+
+    Cheap enough to check many recipes up front (a campaign does, before its first run).
+
+    :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
+    :raises PluginError: a plugin is unknown or a plugin module cannot be imported.
+    """
+    for module in recipe.plugin_modules:
+        registry.register_module(module)
+    context = {"data_root": data or data_root()}
+    configs: dict[Kind, tuple[type[Plugin], PluginConfig]] = {}
+    for kind, spec in recipe.stage_specs().items():
+        try:
+            info = registry.get(kind, spec.plugin)
+        except PluginError as exc:
+            raise PluginError(f"{origin}: {kind}.plugin: {exc}") from exc
+        try:
+            config = info.cls.Config.model_validate(spec.params, context=context)
+        except ValidationError as exc:
+            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
+        configs[kind] = (info.cls, config)
+    return configs
+
+
 def build_pipeline(
     recipe: Recipe, origin: str, registry: PluginRegistry | None = None, data: Path | None = None
 ) -> Pipeline:
@@ -207,20 +234,8 @@ def build_pipeline(
     :raises PluginError: a plugin is unknown or incompatible with another.
     """
     registry = registry or PluginRegistry()
-    for module in recipe.plugin_modules:
-        registry.register_module(module)
-    context = {"data_root": data or data_root()}
-    plugins: dict[Kind, Plugin] = {}
-    for kind, spec in recipe.stage_specs().items():
-        try:
-            info = registry.get(kind, spec.plugin)
-        except PluginError as exc:
-            raise PluginError(f"{origin}: {kind}.plugin: {exc}") from exc
-        try:
-            config = info.cls.Config.model_validate(spec.params, context=context)
-        except ValidationError as exc:
-            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
-        plugins[kind] = info.cls(config)
+    configs = validate_stage_params(recipe, origin, registry, data)
+    plugins: dict[Kind, Plugin] = {kind: cls(config) for kind, (cls, config) in configs.items()}
     for kind, plugin in plugins.items():
         missing = [need for need in getattr(plugin, "requires", ()) if need not in plugins]
         if missing:

@@ -92,7 +92,7 @@ class StageTimer:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
+def sigterm_as_interrupt() -> Iterator[None]:
     """Turn SIGTERM into :class:`RunInterrupted` so the log is finalised (main thread only)."""
 
     def handler(signum: int, _frame: Any) -> None:
@@ -224,7 +224,7 @@ def run_pipeline(
             disable=None if progress is None else not progress,  # None: only on a terminal
         )
         try:
-            with _sigterm_as_interrupt():
+            with sigterm_as_interrupt():
                 for frame in pipeline.source.frames():
                     if max_frames is not None and n_frames >= max_frames:
                         break

@@ -1,0 +1,158 @@
+"""Sweep files and their expansion into runs (no run is executed here)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from slamfront.campaign import plan_runs, read_sweep
+from slamfront.campaign.plan import format_value
+from slamfront.campaign.results import cell, metric_value
+from slamfront.campaign.sweepfile import sweeps_dir
+from slamfront.errors import RecipeError
+
+from tests.helpers import small_synthetic_recipe
+from tests.test_cli import _one_line_error
+
+
+def write_sweep(folder: Path, sweep: dict[str, Any], recipe: dict[str, Any] | None = None) -> Path:
+    """A sweep file beside a small synthetic recipe ``small.yaml`` (the sweep names it by
+    default; a key given as None is left out)."""
+    (folder / "small.yaml").write_text(yaml.safe_dump(recipe or small_synthetic_recipe()))
+    path = folder / "sweep.yaml"
+    content = {k: v for k, v in {"name": "test", "recipe": "small.yaml", **sweep}.items() if v is not None}
+    path.write_text(yaml.safe_dump(content, sort_keys=False))
+    return path
+
+
+def test_expansion_order_counts_and_precedence(tmp_path: Path) -> None:
+    path = write_sweep(tmp_path, {
+        "set": {"loop_detector.params.threshold": 0.5, "source.params.seed": 7},
+        "variants": {"dusk": {}, "night": {"source.params.query_illumination": "night"}},
+        "cases": [{"loop_detector.params.candidates": 3}, {"loop_detector.params.candidates": 5}],
+        "grid": {"loop_detector.params.uniqueness_window": [2, 10, 30], "loop_detector.params.threshold": [0.1, 0.2]},
+        "repetitions": 2,
+        "repetition_seed": "source.params.seed",
+    })
+    runs = plan_runs(read_sweep(path), path)
+    assert len(runs) == 2 * 2 * 3 * 2 * 2
+    assert [r.index for r in runs] == list(range(len(runs)))
+    first, last = runs[0], runs[-1]
+    assert first.labels == {"variant": "dusk"} and last.labels == {"variant": "night"}
+    assert first.params == {"loop_detector.params.candidates": 3, "loop_detector.params.uniqueness_window": 2,
+                            "loop_detector.params.threshold": 0.1}
+    # grid beats the sweep-wide set; the repetition seed beats the sweep-wide seed
+    assert first.recipe["loop_detector"]["params"]["threshold"] == 0.1
+    assert [r.recipe["source"]["params"]["seed"] for r in runs[:2]] == [0, 1]
+    assert last.recipe["source"]["params"]["query_illumination"] == "night"
+    assert len({r.key for r in runs}) == len(runs) and len({r.name for r in runs}) == len(runs)
+    assert "variant=night" in last.describe() and "uniqueness_window=30" in last.describe()
+
+
+def test_keys_are_stable_and_follow_the_resolved_recipe(tmp_path: Path) -> None:
+    path = write_sweep(tmp_path, {"grid": {"loop_detector.params.uniqueness_window": [2, 10]}})
+    keys = [r.key for r in plan_runs(read_sweep(path), path)]
+    assert keys == [r.key for r in plan_runs(read_sweep(path), path)]
+    # a label is not part of the recipe: renaming it keeps the key; a value change does not
+    renamed = write_sweep(tmp_path, {"recipe": None, "recipes": {"other_label": {"recipe": "small.yaml"}},
+                                     "grid": {"loop_detector.params.uniqueness_window": [2, 10]}})
+    relabelled = plan_runs(read_sweep(renamed), renamed)
+    assert [r.key for r in relabelled] == keys and relabelled[0].method == "other_label"
+    changed = write_sweep(tmp_path, {"grid": {"loop_detector.params.uniqueness_window": [2, 11]}})
+    assert [r.key for r in plan_runs(read_sweep(changed), changed)][1] != keys[1]
+    limited = plan_runs(read_sweep(path), path, max_frames=10)
+    assert limited[0].key != keys[0] and limited[0].max_frames == 10
+
+
+def test_methods_with_labels(tmp_path: Path) -> None:
+    path = write_sweep(tmp_path, {"recipe": None, "recipes": {
+        "nn_exp1": {"recipe": "small.yaml", "labels": {"method": "nn", "experiment": "exp1"}},
+        "nn_exp2": {"recipe": "small.yaml", "set": {"source.params.seed": 3},
+                    "labels": {"method": "nn", "experiment": "exp2"}},
+    }})
+    runs = plan_runs(read_sweep(path), path)
+    assert [(r.method, r.labels) for r in runs] == [("nn", {"experiment": "exp1"}), ("nn", {"experiment": "exp2"})]
+    assert runs[1].recipe["source"]["params"]["seed"] == 3
+
+
+@pytest.mark.parametrize("value", [1e-9, 0.3, "0.3", "yes", True, None, [1, 2.5], {"a": "b c"}, "night", 10])
+def test_override_values_round_trip(value: Any) -> None:
+    assert yaml.safe_load(format_value(value)) == value
+
+
+def test_result_cells_and_dotted_metrics() -> None:
+    assert [cell(v) for v in (None, 0.1, 3, True, "x", [1, 2])] == ["", "0.1", "3", "true", "x", "[1, 2]"]
+    metrics = {"auc_pr": 0.5, "timing": {"descriptor": {"median_ms": 1.5}}}
+    assert metric_value(metrics, "auc_pr") == 0.5
+    assert metric_value(metrics, "timing.descriptor.median_ms") == 1.5
+    assert metric_value(metrics, "timing.nope") is None
+
+
+@pytest.mark.parametrize(
+    ("sweep", "expected"),
+    [
+        ({"grid": {"loop_detector.params.threshold": []}}, "grid: loop_detector.params.threshold: a grid axis needs"),
+        ({"grid": {"a..b": [1]}}, "grid: 'a..b' is not an override path"),
+        ({"recipes": {"x": {"recipe": "small.yaml"}}}, "give either `recipe`"),
+        ({"bogus": 1}, "bogus: Extra inputs are not permitted"),
+        ({"repetitions": 0}, "repetitions: Input should be greater than or equal to 1"),
+        ({"cases": [{"loop_detector.params.threshold": 0.1}], "grid": {"loop_detector.params.threshold": [0.2]}},
+         "loop_detector.params.threshold is both a grid axis and set by a case"),
+        ({"recipe": "no_such_recipe"}, "recipe: no such recipe 'no_such_recipe'"),
+        ({"grid": {"loop_detector.params.threshold": [0.1, 2.0]}},
+         "run 'small threshold=2.0' (", ),
+        ({"grid": {"loop_detector.params.treshold": [0.1]}}, "loop_detector.params.treshold: Extra inputs"),
+        ({"variants": {"a": {}, "b": {}}}, "resolve to the same recipe"),
+    ],
+)
+def test_bad_sweeps_fail_before_any_run(cli, tmp_path: Path, sweep: dict[str, Any], expected: str) -> None:
+    path = write_sweep(tmp_path, sweep)
+    out = tmp_path / "out"
+    line = _one_line_error(*cli("sweep", path, "-o", out, "-q")[::2])
+    assert str(path) in line and expected in line
+    assert not out.exists()
+
+
+def test_bad_sweep_files(cli, tmp_path: Path) -> None:
+    line = _one_line_error(*cli("sweep", tmp_path / "nope.yaml")[::2])
+    assert "nope.yaml: no such sweep file" in line
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("name: x\ngrid: [1,\n")
+    assert f"{broken}:3: not valid YAML" in _one_line_error(*cli("sweep", broken)[::2])
+    broken.write_text("- just a list\n")
+    assert "a sweep must be a YAML mapping" in _one_line_error(*cli("sweep", broken)[::2])
+
+
+def test_invalid_param_names_the_run_and_field(cli, tmp_path: Path) -> None:
+    path = write_sweep(tmp_path, {"grid": {"loop_detector.params.threshold": [0.1, 2.0]}})
+    line = _one_line_error(*cli("sweep", path, "--dry-run")[::2])
+    assert "loop_detector.params.threshold: Input should be less than or equal to 1 (got 2.0)" in line
+
+
+# Recipes the shipped Nordland sweeps name, built by other issues (hierarchical detector,
+# SeqSLAM, Fast-SeqSLAM). Until they are on this branch their sweeps are checked for
+# structure only; once a recipe exists, its sweeps are expanded and validated in full.
+RECIPES_FROM_OTHER_ISSUES = {
+    f"nordland_{method}{exp}" for method in ("hsl", "seqslam", "seqslam_fast") for exp in ("", "_exp2", "_exp3")
+}
+
+
+@pytest.mark.parametrize("path", sorted(sweeps_dir().glob("*.yaml")), ids=lambda p: p.stem)
+def test_shipped_sweeps_validate(path: Path) -> None:
+    sweep = read_sweep(path)
+    assert sweep.name == path.stem and sweep.description, f"{path}: needs its file name as name and a description"
+    try:
+        runs = plan_runs(sweep, path)
+    except RecipeError as exc:
+        missing = str(exc).split("no such recipe '")[-1].split("'")[0] if "no such recipe" in str(exc) else None
+        assert missing in RECIPES_FROM_OTHER_ISSUES, exc
+        return
+    assert runs and all(r.recipe for r in runs)
+
+
+def test_the_synthetic_sweep_runs_today() -> None:
+    path = sweeps_dir() / "synthetic_nn.yaml"
+    runs = plan_runs(read_sweep(path), path)
+    assert len(runs) == 24 and {r.labels["variant"] for r in runs} == {"dusk", "night"}
