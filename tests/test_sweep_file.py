@@ -156,3 +156,30 @@ def test_the_synthetic_sweep_runs_today() -> None:
     path = sweeps_dir() / "synthetic_nn.yaml"
     runs = plan_runs(read_sweep(path), path)
     assert len(runs) == 24 and {r.labels["variant"] for r in runs} == {"dusk", "night"}
+
+
+def test_campaign_figures_from_a_table(tmp_path: Path) -> None:
+    """Two methods x two experiments x a 3-value parameter x 2 repetitions, drawn without running."""
+    import numpy as np
+    from slamfront.campaign import plots
+    from slamfront.campaign.results import ResultsTable
+
+    table = ResultsTable(columns=[], label_columns=["experiment"], param_columns=["loop_detector.params.nu"],
+                         metric_columns=["recall_at_100p", "ate_rmse_m"], rows=[], repetitions=True)
+    curves = {}
+    for method in ("hsl", "seqslam"):
+        for experiment in ("exp1", "exp2"):
+            for nu in (0.5, 0.7, 0.9):
+                for repetition in (0, 1):
+                    recall = 0.5 * nu + (0.2 if method == "hsl" else 0.0) + 0.01 * repetition
+                    curves[len(table.rows)] = (np.linspace(0, recall, 5), np.linspace(1, 0.6, 5))
+                    table.rows.append({"status": "ok", "method": method, "experiment": experiment,
+                                       "loop_detector.params.nu": nu, "repetition": repetition,
+                                       "recall_at_100p": recall, "ate_rmse_m": 1 - recall})
+    table.rows.append({"status": "failed", "method": "hsl", "experiment": "exp1", "loop_detector.params.nu": 1.0,
+                       "repetition": 0, "recall_at_100p": None, "ate_rmse_m": None})
+    figures = [*plots.metric_vs_parameter(table, tmp_path), *plots.methods_side_by_side(table, tmp_path),
+               *plots.pr_curves(table, curves, tmp_path)]
+    assert sorted(p.name for p in figures) == ["methods.png", "pr_exp1.png", "pr_exp2.png", "vs_nu.png"]
+    assert all(p.stat().st_size > 5000 for p in figures)
+    assert plots.higher_is_better("recall_at_100p") and not plots.higher_is_better("ate_rmse_m")

@@ -167,14 +167,16 @@ def read_sweep(path: Path) -> Sweep:
 
 
 def resolve_recipe(sweep_path: Path, field: str, recipe: str) -> Path:
-    """A method's recipe file: beside the sweep file, else as given, else a shipped recipe.
+    """A method's recipe file: beside the sweep file (``.yaml`` may be left out), else as
+    given, else a shipped recipe.
 
     :param field: where the sweep names it (``recipe`` or ``recipes.<label>.recipe``), for messages.
     :raises RecipeError: naming the sweep file, the field and the recipe that is missing.
     """
     beside = sweep_path.parent / recipe
-    if beside.is_file():
-        return beside
+    for candidate in (beside, beside.with_name(beside.name + ".yaml")) if beside.suffix == "" else (beside,):
+        if candidate.is_file():
+            return candidate
     try:
         return find_recipe(recipe)
     except RecipeError:
