@@ -183,3 +183,42 @@ def test_campaign_figures_from_a_table(tmp_path: Path) -> None:
     assert sorted(p.name for p in figures) == ["methods.png", "pr_exp1.png", "pr_exp2.png", "vs_nu.png"]
     assert all(p.stat().st_size > 5000 for p in figures)
     assert plots.higher_is_better("recall_at_100p") and not plots.higher_is_better("ate_rmse_m")
+
+
+def test_the_readme_sweep_example_is_valid(tmp_path: Path) -> None:
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## Campaigns", 1)[1]
+    example = section.split("```yaml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "example.yaml"
+    path.write_text(example)
+    runs = plan_runs(read_sweep(path), path)
+    assert len(runs) == 2 * 3 * 2 * 2  # variants x grid x cases(1) x repetitions
+    assert runs[1].recipe["source"]["params"]["seed"] == 1
+
+
+def test_sweep_help(cli) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli("sweep", "--help")
+    assert exit_info.value.code == 0
+
+
+def test_pr_curve_file_round_trips_exactly(tmp_path: Path) -> None:
+    import numpy as np
+    from slamfront.core.loops import precision_recall
+    from slamfront.evaluation.loops import read_pr_curve, write_pr_curve
+
+    rng = np.random.default_rng(3)
+    curve = precision_recall(rng.random(50), rng.random(50) > 0.1, rng.random(50) > 0.3, 45)
+    thresholds, precision, recall = read_pr_curve(write_pr_curve(curve, tmp_path / "pr_curve.csv"))
+    assert np.array_equal(thresholds, curve.thresholds) and np.array_equal(precision, curve.precision)
+    assert np.array_equal(recall, curve.recall)
+    empty = precision_recall(np.zeros(0), np.zeros(0, bool), np.zeros(0, bool), 0)
+    assert [len(a) for a in read_pr_curve(write_pr_curve(empty, tmp_path / "empty.csv"))] == [0, 0, 0]
+
+
+def test_bad_ray_addresses(cli, tmp_path: Path) -> None:
+    path = write_sweep(tmp_path, {})
+    line = _one_line_error(*cli("sweep", path, "--ray", "nonsense", "-q")[::2])
+    assert "--ray nonsense: expected local, auto, ray://HOST:PORT or HOST:PORT" in line
+    line = _one_line_error(*cli("sweep", path, "-o", tmp_path / "out", "--ray", "127.0.0.1:1", "-q")[::2])
+    assert "--ray 127.0.0.1:1: no Ray cluster answers there" in line

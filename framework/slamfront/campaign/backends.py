@@ -12,6 +12,7 @@ import contextlib
 import multiprocessing
 import os
 import signal
+import socket
 from collections import deque
 from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -150,6 +151,7 @@ class RayBackend:
     def __init__(
         self, address: str, workers: int | None = None, cpus_per_run: float = 1.0, shared_dir: bool | None = None
     ) -> None:
+        check_address(address)
         self.address = address
         self.workers = max(1, workers or os.cpu_count() or 1)
         self.cpus_per_run = cpus_per_run
@@ -201,9 +203,29 @@ def start_ray(address: str, cpus: int) -> None:
     """``ray.init`` for ``local`` (a private Ray instance with ``cpus`` CPUs), ``auto`` or an address."""
     ray = import_ray()
     if address == "local":
-        ray.init(num_cpus=cpus, include_dashboard=False, log_to_driver=False)
+        # address="local": always a new instance, never a cluster `ray start` left running here
+        ray.init(address="local", num_cpus=cpus, include_dashboard=False, log_to_driver=False)
     else:
+        _check_reachable(address)
         try:
             ray.init(address=address, log_to_driver=False)
         except ConnectionError as exc:
             raise SlamfrontError(f"--ray {address}: cannot connect to a Ray cluster: {exc}") from exc
+
+
+def check_address(address: str) -> None:
+    """``local``, ``auto``, ``ray://HOST:PORT`` or ``HOST:PORT``, else a clear error."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if address not in ("local", "auto") and not (host and port.isdigit()):
+        raise SlamfrontError(f"--ray {address}: expected local, auto, ray://HOST:PORT or HOST:PORT")
+
+
+def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
+    """Fail fast on a ``HOST:PORT`` nobody answers at (Ray itself retries for minutes)."""
+    if address == "auto" or "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise SlamfrontError(f"--ray {address}: no Ray cluster answers there: {exc.strerror or exc}") from exc
