@@ -88,23 +88,28 @@ def recipes_dir() -> Path:
     return checkout_root() / "recipes"
 
 
-def find_recipe(name_or_path: str | Path) -> Path:
-    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
+    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = recipes_dir() / f"{name_or_path}.yaml"
+    shipped = folder / f"{name_or_path}.yaml"
     if path.suffix == "" and shipped.exists():
         return shipped
-    raise RecipeError(f"{name_or_path}: no such recipe file (shipped recipes: `slamfront recipes`)")
+    raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
-def read_recipe_dict(path: Path) -> dict[str, Any]:
-    """Parse a recipe file to a dict, with the file named in any error."""
+def find_recipe(name_or_path: str | Path) -> Path:
+    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+    return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
+
+
+def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
+    """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
     try:
         text = path.read_text()
     except OSError as exc:
-        raise RecipeError(f"{path}: cannot read recipe: {exc.strerror or exc}") from exc
+        raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -112,9 +117,14 @@ def read_recipe_dict(path: Path) -> dict[str, Any]:
         where = f":{mark.line + 1}" if mark is not None else ""
         raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
     if not isinstance(raw, dict):
-        raise RecipeError(f"{path}: a recipe must be a YAML mapping, got {type(raw).__name__}")
+        raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
     raw.setdefault("name", path.stem)
     return raw
+
+
+def read_recipe_dict(path: Path) -> dict[str, Any]:
+    """Parse a recipe file to a dict, with the file named in any error."""
+    return read_yaml_mapping(path, "recipe")
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from slamfront.data import checkout_root
 from slamfront.errors import RecipeError
-from slamfront.recipe import find_recipe
+from slamfront.recipe import _format_validation, find_named_file, find_recipe, read_yaml_mapping
 
 Overrides = dict[str, Any]
 """``{"a.b.c": value}``: what ``--set a.b.c=value`` would do."""
@@ -134,36 +134,16 @@ def sweeps_dir() -> Path:
 
 def find_sweep(name_or_path: str | Path) -> Path:
     """A sweep file: a path as given, or the name of a shipped sweep."""
-    path = Path(name_or_path)
-    if path.exists():
-        return path
-    shipped = sweeps_dir() / f"{name_or_path}.yaml"
-    if path.suffix == "" and shipped.exists():
-        return shipped
-    raise RecipeError(f"{name_or_path}: no such sweep file (shipped sweeps are in {sweeps_dir()})")
+    return find_named_file(name_or_path, sweeps_dir(), "sweep", f"shipped sweeps are in {sweeps_dir()}")
 
 
 def read_sweep(path: Path) -> Sweep:
     """Parse and validate a sweep file (its structure; recipes are checked by :func:`resolve_recipe`)."""
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise RecipeError(f"{path}: cannot read sweep: {exc.strerror or exc}") from exc
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
-    if not isinstance(raw, dict):
-        raise RecipeError(f"{path}: a sweep must be a YAML mapping, got {type(raw).__name__}")
-    raw.setdefault("name", path.stem)
+    raw = read_yaml_mapping(path, "sweep")
     try:
         return Sweep.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        message = err["msg"].removeprefix("Value error, ")
-        more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
-        raise RecipeError(f"{path}: {loc + ': ' if loc else ''}{message}{more}") from exc
+        raise RecipeError(f"{path}: {_format_validation(exc, '').replace('Value error, ', '')}") from exc
 
 
 def resolve_recipe(sweep_path: Path, field: str, recipe: str) -> Path:
