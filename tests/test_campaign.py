@@ -184,7 +184,7 @@ def _finished_runs(out: Path) -> dict[Path, int]:
 
 
 def test_interrupted_campaign_resumes_without_redoing_finished_runs(cli, tmp_path: Path) -> None:
-    sweep = write_sweep(tmp_path, SIX_RUNS, quiet_recipe(frames_per_traversal=60))
+    sweep = write_sweep(tmp_path, SIX_RUNS, quiet_recipe(frames_per_traversal=100))
     out = tmp_path / "out"
     command = [str(Path(sys.executable).parent / "slamfront"), "sweep", str(sweep), "-o", str(out), "--workers", "1", "-q"]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
