@@ -3,12 +3,33 @@ and the match plot (chosen reference vs query over the ground-truth band)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from slamfront.core.loops import precision_recall, recall_at_k
+from slamfront.core.loops import PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopResult, Message
 from slamfront.report import plots
+
+PR_CURVE_FILE = "pr_curve.csv"
+"""The run's precision-recall curve beside metrics.json, for campaigns comparing runs."""
+
+
+def write_pr_curve(curve: PrecisionRecall, path: Path) -> Path:
+    """One row per threshold (decreasing): ``threshold,precision,recall``, full float precision."""
+    rows = (f"{t!r},{p!r},{r!r}" for t, p, r in zip(curve.thresholds.tolist(), curve.precision.tolist(),
+                                                     curve.recall.tolist()))
+    path.write_text("\n".join(["threshold,precision,recall", *rows]) + "\n")
+    return path
+
+
+def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(threshold, precision, recall)`` arrays from a file :func:`write_pr_curve` wrote."""
+    lines = path.read_text().splitlines()[1:]
+    table = np.array([[float(v) for v in line.split(",")] for line in lines if line], dtype=np.float64)
+    table = table.reshape(-1, 3)
+    return table[:, 0], table[:, 1], table[:, 2]
 
 
 class LoopClosureEvaluation(Evaluation):
@@ -40,6 +61,7 @@ class LoopClosureEvaluation(Evaluation):
         correct = truth.is_correct(frames, match)
         positives = truth.has_true_match()
         curve = precision_recall(confidence, answered, correct, int(positives.sum()))
+        write_pr_curve(curve, context.out_dir / PR_CURVE_FILE)
 
         op_accepted = accepted & answered
         op_tp = int(np.sum(op_accepted & correct))
