@@ -23,6 +23,7 @@ from slamfront.messages import Message
 
 if TYPE_CHECKING:
     from slamfront.core.loops import LoopGroundTruth
+    from slamfront.datasets import DatasetDownload
 
 Kind = Literal[
     "source", "descriptor", "place_map", "loop_detector", "localizer", "registration", "backend"
@@ -80,6 +81,8 @@ class Source(Plugin):
     """Yields frames. Sources are the only plugins that read data."""
 
     kind: ClassVar[Kind] = "source"
+    downloads: ClassVar[tuple[DatasetDownload, ...]] = ()
+    """Public datasets this source reads, for ``slamfront datasets download``."""
 
     def frames(self) -> Iterator[Frame]:
         """Yield the run's frames in order, lazily, with ``index`` counting from 0."""
@@ -91,6 +94,14 @@ class Source(Plugin):
 
     def loop_ground_truth(self) -> LoopGroundTruth | None:
         """Which reported matches count as correct, for loop-detection evaluation."""
+        return None
+
+    def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
+        """The same ground truth with another tolerance zeta (frames either side).
+
+        Lets one run be scored at several tolerances (``eval.tolerances``). None: this
+        source has no tolerance to change.
+        """
         return None
 
 
