@@ -49,6 +49,7 @@ class DatasetDownload:
     :ivar members: extract only archive members under this prefix ("" = all).
     :ivar strip: leading path removed from extracted member names.
     :ivar expect: paths (relative to the dataset folder) that must exist afterwards.
+    :ivar manual: how to get the data by hand; ``{cache}`` is replaced by the cache folder.
     """
 
     name: str
@@ -97,7 +98,7 @@ def fetch(
     source = url or spec.url
     archive = spec.archive_path(cache)
     if source is None and not archive.exists():
-        raise DataError(f"{spec.name}: no direct download. {spec.manual}".strip())
+        raise DataError(f"{spec.name}: no direct download. {spec.manual.format(cache=cache)}".strip())
     cache.mkdir(parents=True, exist_ok=True)
     if not archive.exists():
         _download(source, archive, spec.name, progress, timeout)  # type: ignore[arg-type]

@@ -37,6 +37,27 @@ def pr_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, t
     return path
 
 
+def recall_curves(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "",
+    xlabel: str = "psi (nearest neighbours considered)", ylabel: str = "recall",
+) -> Path:
+    """Recall against the number of neighbours, one line per label: ``{label: (ks, recall)}``."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
+    for label, (ks, recall) in curves.items():
+        ax.plot(ks, recall, marker="o", markersize=3, label=label)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title or "recall")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def match_plot(
     query: np.ndarray,
     match: np.ndarray,

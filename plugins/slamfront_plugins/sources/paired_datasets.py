@@ -50,7 +50,7 @@ UOFA = DatasetDownload(
         "The authors share it as a Google Drive folder "
         "(https://drive.google.com/drive/folders/0B5OUuYYB6c4CUktyMncxZXQxcDQ, linked from "
         "github.com/siam1251/Fast-SeqSLAM/dataset). Download its day_evening folder and put it at "
-        f"{cache_root() / 'uofa' / 'day_evening'} (or anywhere, and set the uofa source's root)."
+        "{cache}/uofa/day_evening (or anywhere, and set the uofa source's root)."
     ),
 )
 
