@@ -194,9 +194,11 @@ class PairedTraversals(Source):
         foreign = self._foreign_frames(references)
         last_shape: tuple[int, ...] | None = None
         for k, item in enumerate(references):
-            image = next(foreign) if item.path is None else self._read(item.path, last_shape)
+            if item.path is None:
+                name, image = next(foreign)
+            else:
+                name, image = item.path.name, self._read(item.path, last_shape)
             last_shape = image.shape
-            name = item.path.name if item.path is not None else f"replacement-{item.foreign:05d}"
             yield Frame(index=k, timestamp=k * dt, image=image, traversal="reference", sequence_index=k, name=name)
         offset = len(references)
         last_shape = None
@@ -227,23 +229,23 @@ class PairedTraversals(Source):
                 continue
         raise DataError(f"{path.parent}: no readable image at all")
 
-    def _foreign_frames(self, references: list[ReferenceItem]) -> Iterator[np.ndarray]:
-        """Experiment 2's replacement images, at the reference image size and colour."""
+    def _foreign_frames(self, references: list[ReferenceItem]) -> Iterator[tuple[str, np.ndarray]]:
+        """Experiment 2's replacement frames ``(name, image)``, at the reference image size and colour."""
         n = sum(1 for item in references if item.path is None)
         if n == 0:
             return iter(())
         sample = read_image(next(item.path for item in references if item.path is not None))
         height, width = sample.shape[:2]
-        grey = sample.ndim == 2 or bool(np.all(sample[..., 0] == sample[..., 1]) and np.all(sample[..., 1] == sample[..., 2]))
-        return (_fit(image, width, height, grey) for image in self._replacement_images(n, width, height))
+        grey = bool(np.all(sample[..., 0] == sample[..., 1]) and np.all(sample[..., 1] == sample[..., 2]))
+        return ((name, _fit(image, width, height, grey)) for name, image in self._replacements(n, width, height))
 
-    def _replacement_images(self, n: int, width: int, height: int) -> Iterator[np.ndarray]:
+    def _replacements(self, n: int, width: int, height: int) -> Iterator[tuple[str, np.ndarray]]:
         folder = self.config.replacement_folder
         if folder is not None:
             files = images_in(Path(folder))
             if len(files) < n:
                 raise DataError(f"{folder}: {len(files)} images, the replaced block needs {n}")
-            return (read_image(p) for p in files[:n])
+            return ((p.name, read_image(p)) for p in files[:n])
         from slamfront_plugins.sources.synthetic import SyntheticWorld  # renders with Open3D: import on use
 
         world = SyntheticWorld(SyntheticWorld.Config(
@@ -251,7 +253,7 @@ class PairedTraversals(Source):
             image_width=max(width, 16), image_height=max(height, 16), reference_occluders=0,
         ))
         frames = world.frames()
-        return (next(frames).image for _ in range(n))
+        return ((f"synthetic-{k:05d}", next(frames).image) for k in range(n))
 
     # --- ground truth -------------------------------------------------------------------
 

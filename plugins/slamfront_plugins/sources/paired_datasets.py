@@ -240,8 +240,8 @@ class PairedFolders(PairedTraversals):
             resolved = [self._resolve(cell.strip(), names, count) for cell, names, count in
                         zip(row[:2], by_name, (len(query), len(reference)))]
             if None in resolved:
-                if line_number == 1:  # a header line
-                    continue
+                if line_number == 1 and not any(cell.strip().lstrip("-").isdigit() for cell in row[:2]):
+                    continue  # a header line
                 side = "query" if resolved[0] is None else "reference"
                 raise DataError(f"{path}:{line_number}: {side} {row[0 if side == 'query' else 1]!r} is not an image "
                                 f"name or a position in range")
