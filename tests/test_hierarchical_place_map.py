@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from slamfront.core.vptree import brute_force_knn
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap, choose_similarity_threshold, place_sizes
 
@@ -66,9 +67,10 @@ def test_committing_query_places_extends_the_map() -> None:
     assert (1, 2, "route") not in place_map.edges  # another traversal: no route edge
 
 
-def test_nearest_places_equal_brute_force_over_representatives() -> None:
+@pytest.mark.parametrize("search", ["vptree", "brute_force"])
+def test_nearest_places_equal_brute_force_over_representatives(search: str) -> None:
     vectors = route_descriptors(n_places=300, frames_per_place=2, dim=16, seed=3)
-    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9, leaf_size=4))
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9, leaf_size=4, search=search))
     _feed(place_map, vectors, ["reference"] * len(vectors))
     representatives = place_map.map_representatives(range(place_map.n_map_places))
     rng = np.random.default_rng(0)

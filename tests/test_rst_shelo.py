@@ -134,9 +134,11 @@ def test_an_image_smaller_than_the_grid_is_a_clear_error() -> None:
         RstShelo().process(StageInputs(frame=frame))
 
 
-def test_on_nordland_preprocessing_helps_retrieval_at_large_psi(shared_data: Path) -> None:
-    """Seed 000 §4.2 on real data (frames 0-399, summer vs winter): the seed's preprocessing
-    retrieves a correct reference within zeta = 3 more often among the 20 nearest."""
+def test_nordland_retrieval_with_and_without_preprocessing(shared_data: Path) -> None:
+    """Seed 000 §4.2 on real data (frames 0-399, summer vs winter, zeta = 3): a correct
+    reference among the 1 and the 20 nearest descriptors. On this stretch the two settings
+    are close (measured 0.40/0.82 with, 0.35/0.77 without); over the whole route the
+    seed's preprocessing retrieves less on these 64 x 32 frames (README, Results)."""
     folder = shared_data / "nordland"
     names = sorted(p.name for p in (folder / "summer").glob("*.png"))[:400]
 
@@ -148,7 +150,6 @@ def test_on_nordland_preprocessing_helps_retrieval_at_large_psi(shared_data: Pat
         hit = np.abs(nearest - np.arange(len(names))[:, None]) <= 3
         return np.array([hit[:, :k].any(axis=1).mean() for k in (1, 20)])
 
-    with_pre = recall(RstShelo.Config())
-    without = recall(RstShelo.Config(preprocess=False))
-    assert with_pre[1] >= without[1]
-    assert with_pre[0] >= 0.25 and with_pre[1] >= 0.6
+    for config in (RstShelo.Config(), RstShelo.Config(preprocess=False)):
+        at_1, at_20 = recall(config)
+        assert at_1 >= 0.3 and at_20 >= 0.65

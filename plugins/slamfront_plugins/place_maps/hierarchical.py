@@ -24,13 +24,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
-from slamfront.core.vptree import VPTree
+from slamfront.core.vptree import VPTree, brute_force_knn
 from slamfront.frame import Traversal
 from slamfront.messages import Features, PlaceAssignment
 
@@ -118,6 +119,10 @@ class HierarchicalPlaceMap(PlaceMap):
             default_factory=lambda: ["reference"],
             description="traversals whose places join the map when created (the rest wait for commit())",
         )
+        search: Literal["vptree", "brute_force"] = Field(
+            "vptree", description="how representatives are searched; both are exact and give the same answer "
+            "(the VP-tree of the seed pays off for low intrinsic dimension, see benchmarks/results/vptree.md)",
+        )
         leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
 
     def __init__(self, config: Config | None = None) -> None:
@@ -129,6 +134,7 @@ class HierarchicalPlaceMap(PlaceMap):
         self._map_frames: list[int] = []  # frame indices of the map's places, in map order
         self._map_starts: list[int] = []  # first map-frame position of each map place
         self._tree: VPTree | None = None
+        self._representatives: GrowingRows | None = None  # of the map places, by map position
         self._metric = "l1"
         self.edges: set[tuple[int, int, str]] = set()
         """Map edges ``(position a, position b, kind)`` with a < b; kind ``route`` or ``loop``."""
@@ -151,7 +157,9 @@ class HierarchicalPlaceMap(PlaceMap):
             self._metric = features.metric
             if self._metric == "cosine":
                 raise PluginError("the VP-tree needs a metric descriptor distance (l1, l2 or hamming), not cosine")
-            self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]
+            self._representatives = GrowingRows(len(features.vector), dtype=features.vector.dtype)
+            if self.config.search == "vptree":
+                self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]
         self._vectors.append(features.vector)
         current = self.places[-1] if self.places else None
         new_place = (
@@ -185,7 +193,9 @@ class HierarchicalPlaceMap(PlaceMap):
         self._map_places.append(place_id)
         self._map_starts.append(len(self._map_frames))
         self._map_frames.extend(place.frames)
-        self._tree.add(self.representative(place_id))  # type: ignore[union-attr]
+        self._representatives.append(self.representative(place_id))  # type: ignore[union-attr]
+        if self._tree is not None:
+            self._tree.add(self.representative(place_id))
         return position
 
     def link(self, position_a: int, position_b: int) -> None:
@@ -251,8 +261,10 @@ class HierarchicalPlaceMap(PlaceMap):
     def nearest(self, vector: np.ndarray, k: int, lo: int = 0, hi: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` map places whose representatives are nearest to ``vector``, among map
         positions ``lo..hi``: ``(positions, distances)``, nearest first (exact)."""
-        if self._tree is None or len(self._tree) == 0:
+        if self._representatives is None or len(self._representatives) == 0:
             return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
+        if self._tree is None:
+            return brute_force_knn(vector, self._representatives.view, k, self._metric, lo, hi)  # type: ignore[arg-type]
         return self._tree.knn(vector, k, lo, hi)
 
     def statistics(self) -> dict[str, float | int]:
