@@ -27,12 +27,12 @@ a lens cap, a black frame) has no edges to describe: its descriptor is all zeros
 detectors read as "featureless" and answer with no match instead of a guess. Without
 this check, equalisation would stretch sensor noise into strong random edges.
 
-Defaults and why (retrieval on a tuning split, Nordland frames 0-999, summer vs
-winter, zeta 3; see README "RST-SHelo"): 32 x 16 cells of 2 x 2 pixels on the 64 x 32
-Nordland frames, 4 x 4 cells per block (8 x 4 blocks) and 9 bins: 288 values. Finer
-grids lost recall (too few pixels per cell for a stable orientation), coarser blocks
-lost spatial layout; 9 bins (20 degrees) beat 6 and 12; magnitude-weighted votes beat
-coherence-weighted and unweighted ones.
+Defaults (chosen on a tuning split, Nordland frames 0-999, by retrieval with the
+seed's preprocessing; the table is in docs/loop_closure.md): 32 x 16 cells (2 x 2
+pixels on the 64 x 32 Nordland frames), 4 x 4 cells per block (8 x 4 blocks), 9 bins:
+288 values. Finer grids left too few pixels per cell for a stable orientation, coarser
+blocks lost the spatial layout, 9 bins matched or beat 6 and 12, and votes weighted by
+gradient magnitude, shared between blocks, retrieved best.
 """
 
 from __future__ import annotations

@@ -110,7 +110,7 @@ class HierarchicalSequence(LoopDetector):
         psi: int = Field(10, ge=1, description="nearest neighbours searched at level 1 (Table 4.1)")
         alpha: int = Field(5, ge=1, description="temporal consistency: max |I(f_rho^{i-1}) - I(f_1^i)| (Table 4.1)")
         accept_confidence: float = Field(
-            0.7, ge=0, le=1, description="operating point: matches at this confidence or more are accepted"
+            0.75, ge=0, le=1, description="operating point: matches at this confidence or more are accepted"
         )
         query_joins_map: bool = Field(
             False, description="query places join the map after their iteration (seed §4.4 keeps the map "
