@@ -86,7 +86,6 @@ def measure(rows: np.ndarray, queries: np.ndarray, incremental: bool) -> list[ob
 
 def nordland_row() -> list[object] | None:
     import cv2
-
     from slamfront.data import data_root
     from slamfront_plugins.descriptors.rst_shelo import RstShelo
 

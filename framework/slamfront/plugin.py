@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict
 
+from slamfront.errors import PluginError
 from slamfront.frame import Frame
-from slamfront.messages import Message
+from slamfront.messages import Features, Message
 
 if TYPE_CHECKING:
     from slamfront.core.loops import LoopGroundTruth
@@ -128,6 +129,28 @@ class StageInputs:
             if isinstance(message, message_type):
                 return message
         raise KeyError(f"stage {kind!r} produced no {message_type.__name__} for frame {self.frame.index}")
+
+
+def require_global_descriptor(stages: Mapping[str, Plugin]) -> None:
+    """For ``check()``: refuse a recipe whose descriptor produces no global vector.
+
+    :raises PluginError: naming the descriptor.
+    """
+    descriptor = stages.get("descriptor")
+    if descriptor is None or not getattr(descriptor, "produces_global", False):
+        name = descriptor.name if descriptor is not None else "none"
+        raise PluginError(f"needs a global descriptor; {name!r} produces none")
+
+
+def global_features(inputs: StageInputs) -> Features:
+    """The descriptor's ``Features`` for this frame, which must carry a global ``vector``.
+
+    :raises PluginError: the descriptor gave no global vector.
+    """
+    features: Features = inputs.one("descriptor", Features)
+    if features.vector is None:
+        raise PluginError(f"descriptor gave no global vector for frame {features.frame}")
+    return features
 
 
 class Stage(Plugin):

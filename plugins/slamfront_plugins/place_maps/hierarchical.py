@@ -33,7 +33,8 @@ from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
 from slamfront.core.vptree import VPTree, brute_force_knn
 from slamfront.frame import Traversal
-from slamfront.messages import Features, PlaceAssignment
+from slamfront.messages import PlaceAssignment
+from slamfront.plugin import global_features, require_global_descriptor
 
 
 def place_sizes(vectors: np.ndarray, threshold: float, max_distance: float = 2.0, metric: str = "l1") -> np.ndarray:
@@ -140,23 +141,21 @@ class HierarchicalPlaceMap(PlaceMap):
         """Map edges ``(position a, position b, kind)`` with a < b; kind ``route`` or ``loop``."""
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
-        if not getattr(stages["descriptor"], "produces_global", False):
-            raise PluginError(f"needs a global descriptor; {stages['descriptor'].name!r} produces none")
+        require_global_descriptor(stages)
 
     # --- building -------------------------------------------------------------------------
 
     def process(self, inputs: StageInputs) -> Sequence[PlaceAssignment]:
-        features: Features = inputs.one("descriptor", Features)
-        if features.vector is None:
-            raise PluginError(f"descriptor gave no global vector for frame {features.frame}")
+        features = global_features(inputs)
         frame = inputs.frame
         if frame.index != len(self._place_of_frame):
             raise PluginError(f"frames must arrive in order: expected {len(self._place_of_frame)}, got {frame.index}")
         if self._vectors is None:
-            self._vectors = GrowingRows(len(features.vector))
+            self._vectors = GrowingRows(len(features.vector), dtype=features.vector.dtype)
             self._metric = features.metric
-            if self._metric == "cosine":
-                raise PluginError("the VP-tree needs a metric descriptor distance (l1, l2 or hamming), not cosine")
+            if self._metric == "cosine" and self.config.search == "vptree":
+                raise PluginError("the VP-tree needs a metric descriptor distance (l1, l2 or hamming), not cosine; "
+                                  "use search: brute_force")
             self._representatives = GrowingRows(len(features.vector), dtype=features.vector.dtype)
             if self.config.search == "vptree":
                 self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]

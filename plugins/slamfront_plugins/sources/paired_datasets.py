@@ -74,7 +74,30 @@ def find_traversal(root: Path, traversal: str, dataset: str) -> Path:
     )
 
 
-class Nordland(PairedTraversals):
+class TraversalFolders(PairedTraversals):
+    """Base of datasets with one image folder per traversal under a root (not a plugin)."""
+
+    dataset: ClassVar[str] = ""
+    """The dataset's name: its folder under the data root and its download."""
+
+    class Config(PairedTraversals.Config):
+        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+        reference: str = Field("reference", description="folder of the reference traversal")
+        query: str = Field("query", description="folder of the query traversal")
+
+    def traversal_images(self) -> tuple[Path, list[Path], list[Path]]:
+        """(dataset folder, reference images, query images)."""
+        c = self.config
+        root = dataset_folder(c.root, self.dataset)
+        reference = images_in(find_traversal(root, c.reference, self.dataset))
+        return root, reference, images_in(find_traversal(root, c.query, self.dataset))
+
+    def layout(self) -> PairedLayout:
+        root, reference, query = self.traversal_images()
+        return PairedLayout.aligned(reference, query, f"{root} ({self.config.reference} vs {self.config.query})")
+
+
+class Nordland(TraversalFolders):
     """Nordland railway (728 km, Norway), one season as reference and another as query.
 
     Reads ``<root>/<season>/*.png`` (default root: ``nordland`` under the data root, or
@@ -84,18 +107,16 @@ class Nordland(PairedTraversals):
     """
 
     name = "nordland"
+    dataset = "nordland"
     downloads: ClassVar[tuple[DatasetDownload, ...]] = (NORDLAND,)
 
-    class Config(PairedTraversals.Config):
-        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+    class Config(TraversalFolders.Config):
         reference: str = Field("summer", description="season folder used as the reference traversal")
         query: str = Field("winter", description="season folder used as the query traversal")
 
     def layout(self) -> PairedLayout:
         c = self.config
-        root = dataset_folder(c.root, "nordland")
-        reference = images_in(find_traversal(root, c.reference, "nordland"))
-        query = images_in(find_traversal(root, c.query, "nordland"))
+        root, reference, query = self.traversal_images()
         query_names = {p.name for p in query}
         for path in reference:
             if path.name not in query_names:
@@ -109,7 +130,7 @@ class Nordland(PairedTraversals):
         return PairedLayout.aligned(reference, query, str(root))
 
 
-class GardensPoint(PairedTraversals):
+class GardensPoint(TraversalFolders):
     """Gardens Point Walking (QUT campus): two day walks and one night walk, frame-aligned.
 
     Reads ``<root>/{day_left,day_right,night_right}/Image*.jpg`` (200 each); frame i of
@@ -118,22 +139,15 @@ class GardensPoint(PairedTraversals):
     """
 
     name = "gardens_point"
+    dataset = "gardens_point"
     downloads: ClassVar[tuple[DatasetDownload, ...]] = (GARDENS_POINT,)
 
-    class Config(PairedTraversals.Config):
-        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+    class Config(TraversalFolders.Config):
         reference: Literal["day_left", "day_right", "night_right"] = Field("day_left", description="reference walk")
         query: Literal["day_left", "day_right", "night_right"] = Field("night_right", description="query walk")
 
-    def layout(self) -> PairedLayout:
-        c = self.config
-        root = dataset_folder(c.root, "gardens_point")
-        reference = images_in(find_traversal(root, c.reference, "gardens_point"))
-        query = images_in(find_traversal(root, c.query, "gardens_point"))
-        return PairedLayout.aligned(reference, query, f"{root} ({c.reference} vs {c.query})")
 
-
-class UofA(PairedTraversals):
+class UofA(TraversalFolders):
     """UofA day/evening (University of Alberta campus, Husky robot), frame-aligned.
 
     Reads ``<root>/[day_evening/]{day,evening}/<n>.jpg`` (the layout of the Fast-SeqSLAM
@@ -141,19 +155,12 @@ class UofA(PairedTraversals):
     """
 
     name = "uofa"
+    dataset = "uofa"
     downloads: ClassVar[tuple[DatasetDownload, ...]] = (UOFA,)
 
-    class Config(PairedTraversals.Config):
-        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+    class Config(TraversalFolders.Config):
         reference: str = Field("day", description="reference traversal folder")
         query: str = Field("evening", description="query traversal folder")
-
-    def layout(self) -> PairedLayout:
-        c = self.config
-        root = dataset_folder(c.root, "uofa")
-        reference = images_in(find_traversal(root, c.reference, "uofa"))
-        query = images_in(find_traversal(root, c.query, "uofa"))
-        return PairedLayout.aligned(reference, query, str(root))
 
 
 class VprBench(PairedTraversals):
