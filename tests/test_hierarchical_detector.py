@@ -166,3 +166,12 @@ def test_synthetic_world_revisits_at_full_precision(tmp_path: Path) -> None:
     assert metrics["auc_pr"] >= 0.9
     assert metrics["n_searches"] < metrics["n_places_query"] < metrics["n_queries"]
     assert (tmp_path / "run" / "retrieval.png").exists() and (tmp_path / "run" / "matches.png").exists()
+
+
+def test_decisions_round_trip_through_the_log_format() -> None:
+    vectors, traversals, _ = _paired(n_places=15)
+    outputs, _, _ = _detect(vectors, traversals)
+    decision = next(m for m in outputs if isinstance(m, SequenceDecision))
+    again = SequenceDecision.from_json(decision.to_json())
+    assert again.same_as(decision) and again.query_frames.dtype == np.int64
+    assert SequenceDecision.json_schema()["properties"]["candidates"]["type"] == "object"

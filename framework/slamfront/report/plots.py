@@ -52,6 +52,7 @@ def recall_curves(
     fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
     for label, (ks, recall) in curves.items():
         ax.plot(ks, recall, marker="o", markersize=3, label=label)
+    ax.xaxis.get_major_locator().set_params(integer=True)  # psi counts neighbours
     ax.set_ylim(0, 1.02)
     return _finish(fig, ax, path, title or "recall", xlabel, ylabel, "lower right")
 
