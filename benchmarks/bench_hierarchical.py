@@ -23,6 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import peak_rss_mb, publish, table  # noqa: E402
+
 from slamfront.messages import LoopResult  # noqa: E402
 from slamfront.plugin import StageInputs  # noqa: E402
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402

@@ -23,6 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import peak_rss_mb, publish, table  # noqa: E402
+
 from slamfront.core.vptree import VPTree, brute_force_knn  # noqa: E402
 
 DIM = 64
@@ -86,6 +87,7 @@ def measure(rows: np.ndarray, queries: np.ndarray, incremental: bool) -> list[ob
 
 def nordland_row() -> list[object] | None:
     import cv2
+
     from slamfront.data import data_root
     from slamfront_plugins.descriptors.rst_shelo import RstShelo
 

@@ -14,10 +14,11 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from tqdm import tqdm
+
 from slamfront.plugin import StageInputs
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront_plugins.place_maps.hierarchical import choose_similarity_threshold, place_sizes
-from tqdm import tqdm
 
 SEED_FRAMES_PER_PLACE = (200 / 112 + 646 / 236) / 2
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+
 from slamfront import Frame, StageInputs
 from slamfront.messages import Features, Message
 from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence

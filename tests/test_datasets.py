@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
 from slamfront import DataError
 from slamfront.datasets import COMPLETE_MARKER, DatasetDownload, fetch
 

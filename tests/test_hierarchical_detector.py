@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from slamfront import PluginError
 from slamfront.messages import LoopResult
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence, SequenceDecision
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
-
 from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
 
 FRAMES_PER_PLACE = 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from slamfront_plugins.loop_detectors.hierarchical_levels import (
     TemporalConsistency,
     candidate_sequences,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from slamfront.core.vptree import brute_force_knn
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap, choose_similarity_threshold, place_sizes
-
 from tests.hierarchical_helpers import route_descriptors
 
 

@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
+
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import run_pipeline
-
 from tests.helpers import small_synthetic_recipe
 
 DESIGN_KEYS = ("recall_at_100p", "auc_pr", "n_queries", "n_searches", "n_places_reference", "n_places_query",
@@ -76,3 +76,14 @@ def test_hierarchical_recipes_use_the_seed_parameters(name: str) -> None:
     detector = recipe.loop_detector.params  # type: ignore[union-attr]
     assert (detector.get("rho", 5), detector.get("psi", 10), detector.get("alpha", 5)) == (5, 10, 5)
     assert recipe.source.params.get("tolerance", 3) == 3 and recipe.eval.tolerances == [1]
+
+
+def test_a_replay_scores_the_extra_tolerances_too(tmp_path: Path, write_recipe) -> None:
+    from slamfront.replay import replay_log
+
+    path = write_recipe({**small_synthetic_recipe(frames_per_traversal=20), "eval": {"plots": False, "tolerances": [1]}})
+    recipe, _ = load_recipe(path)
+    original = run_pipeline(build_pipeline(recipe, str(path)), str(path), tmp_path / "run", progress=False)
+    replay = replay_log(original.log_path, tmp_path / "replay", progress=False)
+    for key in ("recall_at_100p_zeta1", "auc_pr_zeta1", "recall_at_1_zeta1"):
+        assert replay.metrics[key] == original.metrics[key]

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from slamfront import DataError
 from slamfront.errors import RecipeError
 from slamfront.recipe import build_pipeline, parse_recipe

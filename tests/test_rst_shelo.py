@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from slamfront import DataError, Frame, StageInputs
 from slamfront.core.distances import k_nearest
 from slamfront.errors import RecipeError

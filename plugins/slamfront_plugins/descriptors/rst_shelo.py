@@ -42,6 +42,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import DataError, Descriptor, PluginConfig, StageInputs
 from slamfront.messages import Features
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+
 from slamfront.core.distances import pairwise
 from slamfront.core.sequences import alignment_costs
 

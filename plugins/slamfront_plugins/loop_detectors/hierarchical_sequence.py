@@ -41,9 +41,9 @@ from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.messages import LoopResult, Message, PlaceAssignment
-
 from slamfront_plugins.loop_detectors.hierarchical_levels import (
     Dispatch,
     FrameMatch,

@@ -1,7 +1,6 @@
 """Built-in place maps."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
 
 

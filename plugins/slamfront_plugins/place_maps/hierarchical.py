@@ -28,6 +28,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one

@@ -28,6 +28,7 @@ from typing import Literal
 import cv2
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath

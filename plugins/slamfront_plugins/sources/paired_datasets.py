@@ -13,10 +13,10 @@ from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import DataError
 from slamfront.data import DataPath, cache_root, data_root
 from slamfront.datasets import DatasetDownload
-
 from slamfront_plugins.sources.paired import PairedLayout, PairedTraversals, images_in
 
 NORDLAND_COMMIT = "ea9ca6f6e5f7c5181357c5f649f0a3e0a6a6a8d0"
