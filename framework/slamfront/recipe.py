@@ -60,6 +60,15 @@ class EvalOptions(_Strict):
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
     recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[int] = Field(
+        default_factory=list,
+        description="also score loops at these tolerances (zeta), for sources that support it; "
+        "metrics get the suffix _zeta<t>",
+    )
+    retrieval_max_k: int = Field(
+        20, ge=0, description="descriptor retrieval: recall when a correct reference is among the psi "
+        "nearest, psi = 1..this (seed 000 figs 4.1/4.2); 0 turns it off",
+    )
 
 
 class Recipe(_Strict):
