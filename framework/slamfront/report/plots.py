@@ -110,3 +110,60 @@ def trajectories_2d(
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def _top_view_axes(points: np.ndarray) -> tuple[int, int]:
+    """The two axes a path spreads in most: (x, y), or (x, z) for y-down camera conventions."""
+    spread = np.ptp(points, axis=0) if len(points) else np.ones(3)
+    return (0, 1) if spread[1] >= spread[2] else (0, 2)
+
+
+def localization_plot(
+    truth: np.ndarray, estimate: np.ndarray, keyframes: np.ndarray, path: Path, title: str = ""
+) -> Path:
+    """Top view of ground-truth vs estimated positions, each pair joined, keyframes marked.
+
+    :param truth: (N, 3) true positions, in route order.
+    :param estimate: (N, 3) estimated positions of the same frames.
+    :param keyframes: (K, 3) keyframe positions.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 5.5), dpi=110)
+    a, b = _top_view_axes(np.concatenate([truth, estimate, keyframes.reshape(-1, 3)]))
+    for t, e in zip(truth, estimate):
+        ax.plot([t[a], e[a]], [t[b], e[b]], color="tab:red", linewidth=0.5, alpha=0.5)
+    ax.plot(truth[:, a], truth[:, b], color="tab:gray", linewidth=1.2, label="ground truth")
+    ax.scatter(estimate[:, a], estimate[:, b], s=7, color="tab:blue", label="estimated", zorder=3)
+    if len(keyframes):
+        ax.scatter(keyframes[:, a], keyframes[:, b], s=40, marker="^", facecolors="none", edgecolors="tab:green",
+                   label=f"keyframes ({len(keyframes)})", zorder=4)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("xyz"[a] + " [m]")
+    ax.set_ylabel("xyz"[b] + " [m]")
+    ax.set_title(title or "localization")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", xlabel: str = "", ylabel: str = "") -> Path:
+    """Per-frame errors (N,) against a position along the run (N,), with their RMSE as a line."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 3.2), dpi=110)
+    order = np.argsort(x, kind="stable")
+    ax.plot(x[order], errors[order], linewidth=0.8, marker=".", markersize=3)
+    if len(errors):
+        rmse = float(np.sqrt(np.mean(np.square(errors))))
+        ax.axhline(rmse, color="tab:red", linewidth=0.8, linestyle="--", label=f"RMSE {rmse:.3g}")
+        ax.legend(fontsize=8)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
