@@ -167,3 +167,64 @@ def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", 
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def local_test(offsets: np.ndarray, curves: Mapping[str, Mapping[int, np.ndarray]], path: Path, title: str = "") -> Path:
+    """Matches against neighbouring frames, one panel per target frame, one curve per descriptor.
+
+    :param offsets: (M,) frame offsets from the target.
+    :param curves: ``{descriptor: {target: (M,) matches (NaN: none)}}``.
+    """
+    plt = _pyplot()
+    targets = sorted({t for per_target in curves.values() for t in per_target})
+    columns = min(len(targets), 2) or 1
+    rows = max(1, int(np.ceil(len(targets) / columns)))
+    fig, axes = plt.subplots(rows, columns, figsize=(5.2 * columns, 3.2 * rows), dpi=100, squeeze=False)
+    for ax, target in zip(axes.ravel(), targets):
+        for label, per_target in curves.items():
+            if target in per_target:
+                ax.plot(offsets, per_target[target], marker="o", markersize=3, linewidth=1, label=label)
+        ax.axvline(0, color="gray", linewidth=0.6, linestyle=":")
+        ax.set_title(f"target frame {target}", fontsize=9)
+        ax.set_xlabel("frame offset from target")
+        ax.set_ylabel("matches after RANSAC")
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(targets):]:
+        ax.axis("off")
+    axes.ravel()[0].legend(fontsize=7)
+    fig.suptitle(title or "local test")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def distance_histograms(
+    samples: Mapping[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str = ""
+) -> Path:
+    """Per descriptor: distances of verified matches vs nearest neighbours in unrelated frames.
+
+    :param samples: ``{descriptor: (verified distances, unrelated distances, threshold)}``.
+    """
+    plt = _pyplot()
+    labels = list(samples)
+    columns = min(len(labels), 3) or 1
+    rows = max(1, int(np.ceil(len(labels) / columns)))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), dpi=100, squeeze=False)
+    for ax, label in zip(axes.ravel(), labels):
+        verified, unrelated, threshold = samples[label]
+        both = np.concatenate([verified, unrelated]) if len(verified) + len(unrelated) else np.zeros(1)
+        bins = np.linspace(0, float(np.max(both)) * 1.02 + 1e-9, 40)
+        ax.hist(unrelated, bins=bins, alpha=0.5, density=True, color="tab:red", label="nearest, unrelated frames")
+        ax.hist(verified, bins=bins, alpha=0.5, density=True, color="tab:green", label="verified, neighbouring frames")
+        ax.axvline(threshold, color="black", linewidth=1, linestyle="--", label=f"threshold {threshold:g}")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("descriptor distance")
+    for ax in axes.ravel()[len(labels):]:
+        ax.axis("off")
+    axes.ravel()[0].legend(fontsize=7)
+    fig.suptitle(title or "match distances")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path

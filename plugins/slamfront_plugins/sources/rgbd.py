@@ -19,14 +19,7 @@ import numpy as np
 from pydantic import Field
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
-from slamfront.formats.poses import (
-    Trajectory,
-    numbered_fields,
-    read_kitti,
-    read_pose_lines,
-    read_redwood_log,
-    read_tum,
-)
+from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
 
@@ -43,9 +36,7 @@ KNOWN_CAMERAS = MappingProxyType(
 )
 KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim", "slambook_room"]
 
-POSE_READERS = MappingProxyType(
-    {"pose_lines": read_pose_lines, "redwood_log": read_redwood_log, "tum": read_tum, "kitti": read_kitti}
-)
+POSE_READERS = TRAJECTORY_READERS
 
 
 class Intrinsics(PluginConfig):
