@@ -12,12 +12,14 @@ over consecutive localized frames in arrival order.
 
 from __future__ import annotations
 
+import re
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from slamfront.core.errors import CoreError
-from slamfront.core.trajectory import absolute_trajectory_error, evaluate_poses
+from slamfront.core.trajectory import absolute_trajectory_error, delta_pairs, evaluate_poses, relative_pose_error
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.formats.poses import Trajectory, write_tum
 from slamfront.messages import FrameInfo, KeyframeAdded, Message, PoseEstimate
@@ -53,6 +55,7 @@ class LocalizationEvaluation(Evaluation):
             "n_keyframes": len(self._keyframes),
             "n_localization_queries": len(estimates),
             "n_frames_localized": len(localized),
+            "n_too_few_features": sum(e.reason.startswith("too few features") for e in estimates),
             "fraction_localized": len(localized) / len(estimates),
             "n_refined": sum(e.refined for e in estimates),
             "localization_latency_median_ms": float(np.median(latency)),
@@ -63,14 +66,17 @@ class LocalizationEvaluation(Evaluation):
         scored = [e for e in localized if self._truth.get(e.frame, (0, "", 0, None))[3] is not None]
         figures: list[str] = []
         notes = []
-        if len(scored) >= 3:
+        if scored:
             metrics.update(self._trajectory_metrics(scored))
             metrics.update(self._region_metrics(scored))
             self._write_trajectories(context.out_dir, scored)
             if context.options.plots:
                 figures = self._plots(context.out_dir, scored)
         else:
-            notes.append(f"Only {len(scored)} localized frame(s) have a ground-truth pose: no ATE/RPE (needs 3).")
+            notes.append("No localized frame has a ground-truth pose: no ATE/RPE.")
+        reasons = Counter(re.sub(r"\d+", "N", e.reason) for e in estimates if e.pose is None)
+        if reasons:
+            notes.append("Not localized: " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common()) + ".")
         table = "\n".join(["| metric | value |", "| --- | --- |", *(f"| {k} | {_fmt(v)} |" for k, v in metrics.items())])
         markdown = "\n\n".join([*notes, table, *(f"![{f}]({f})" for f in figures)]) + "\n"
         if scored:
@@ -91,31 +97,21 @@ class LocalizationEvaluation(Evaluation):
 
     def _trajectory_metrics(self, scored: list[PoseEstimate]) -> dict[str, float | int | str]:
         stamps, gt, est = self._arrays(scored)
-        try:
-            result = evaluate_poses(gt, est, stamps, "se3", delta=1, delta_unit="frames")
-        except CoreError as exc:  # e.g. all estimates at one keyframe: alignment undetermined
-            unaligned = absolute_trajectory_error(gt, est, "none").statistics
-            return {"ate_rmse_m": unaligned.rmse, "ate_max_m": unaligned.max, "alignment_note": str(exc)}
-        metrics = result.metrics()
-        unaligned = absolute_trajectory_error(gt, est, "none").statistics
-        metrics["ate_rmse_unaligned_m"] = unaligned.rmse
-        metrics["ate_max_unaligned_m"] = unaligned.max
+        metrics = _scores(gt, est, stamps)
         if any(e.refined for e in scored):
-            keyframe_only = np.stack([e.keyframe_pose for e in scored])
-            kf = evaluate_poses(gt, keyframe_only, stamps, "se3").metrics()
-            metrics["ate_rmse_keyframe_pose_m"] = kf["ate_rmse_m"]
-            metrics["rpe_rmse_keyframe_pose_m"] = kf["rpe_rmse_m"]
-            metrics["ate_rmse_keyframe_pose_unaligned_m"] = absolute_trajectory_error(
-                gt, keyframe_only, "none"
-            ).statistics.rmse
+            keyframe_only = _scores(gt, np.stack([e.keyframe_pose for e in scored]), stamps)
+            metrics["ate_rmse_keyframe_pose_m"] = keyframe_only["ate_rmse_m"]
+            metrics["rpe_rmse_keyframe_pose_m"] = keyframe_only["rpe_rmse_m"]
+            metrics["ate_rmse_keyframe_pose_unaligned_m"] = keyframe_only["ate_rmse_unaligned_m"]
         return metrics
 
     def _region_metrics(self, scored: list[PoseEstimate]) -> dict[str, float | int]:
         """Was each frame given a keyframe of its own region of the map?
 
-        Correct when the chosen keyframe is at most one keyframe spacing (the median
-        distance between consecutive keyframes) farther from the frame's true position
-        than the nearest keyframe is.
+        Correct when the chosen keyframe is no more than two keyframe spacings (the
+        median distance between consecutive keyframes) farther from the frame's true
+        position than the nearest keyframe: the nearest node or one of its two
+        neighbours either way along the route, which see the same scene.
         """
         keyframe_positions = np.array(
             [p[:3, 3] for p in self._keyframes.values() if p is not None], dtype=np.float64
@@ -132,7 +128,7 @@ class LocalizationEvaluation(Evaluation):
             nearest = float(np.min(np.linalg.norm(keyframe_positions - truth, axis=1)))
             chosen = float(np.linalg.norm(e.keyframe_pose[:3, 3] - truth))
             chosen_distance.append(chosen)
-            correct += chosen <= nearest + spacing + 1e-9
+            correct += chosen <= nearest + 2.0 * spacing + 1e-9
         return {
             "fraction_correct_keyframe_region": correct / len(scored),
             "n_wrong_keyframe_region": len(scored) - correct,
@@ -165,6 +161,20 @@ class LocalizationEvaluation(Evaluation):
             "error [m]",
         )
         return [trajectory.name, error.name]
+
+
+def _scores(gt: np.ndarray, est: np.ndarray, stamps: np.ndarray) -> dict[str, float | int | str]:
+    """ATE/RPE after rigid alignment, and ATE without; unaligned only when alignment is undetermined."""
+    unaligned = absolute_trajectory_error(gt, est, "none").statistics
+    try:
+        metrics = evaluate_poses(gt, est, stamps, "se3", delta=1, delta_unit="frames").metrics()
+    except CoreError as exc:  # fewer than 3 poses, or every estimate at one keyframe
+        rpe = relative_pose_error(gt, est, delta_pairs(stamps, 1)).translation_statistics
+        metrics = {"ate_rmse_m": unaligned.rmse, "ate_max_m": unaligned.max, "rpe_rmse_m": rpe.rmse,
+                   "rpe_max_m": rpe.max, "alignment": "none", "alignment_note": f"not aligned: {exc}"}
+    metrics["ate_rmse_unaligned_m"] = unaligned.rmse
+    metrics["ate_max_unaligned_m"] = unaligned.max
+    return metrics
 
 
 def _fmt(value: object) -> str:

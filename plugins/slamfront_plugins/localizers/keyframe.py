@@ -76,7 +76,7 @@ class KeyframeLocalizer(Localizer):
         self._map: Map | None = None
         self._current = -1
         self._pending: list[View] = []
-        self._frame_nodes: dict[int, int] = {}
+        self._keyframe_node: dict[int, int] = {}  # frame index -> node, for frames that became keyframes
         self._n_training = 0
         self._n_queries = 0
 
@@ -126,7 +126,7 @@ class KeyframeLocalizer(Localizer):
     def finish(self) -> Sequence[Message]:
         out: list[Message] = []
         for view in self._pending:
-            exclude = self._frame_nodes.get(view.frame, -1) if self.config.exclude_self else -1
+            exclude = self._keyframe_node.get(view.frame, -1) if self.config.exclude_self else -1
             out.append(self._localize(view, exclude))
         self._pending = []
         if self._map is not None:
@@ -163,17 +163,15 @@ class KeyframeLocalizer(Localizer):
         if self._current >= 0:
             current = self.map.keyframes[self._current]
             if self.map.compare(view, self._current).inliers >= fraction * len(current.view):
-                self._frame_nodes[frame.index] = self._current
                 return []
             similar = self.map.similar(view, fraction)
             if similar >= 0:
                 self._current = similar  # a place seen before: no new keyframe
-                self._frame_nodes[frame.index] = similar
                 return []
         reason = "first keyframe" if self._current < 0 else f"fewer than {fraction:g} x keypoints matched any keyframe"
         keyframe = self.map.add(view, frame.pose, self._points(frame, view))
         self._current = keyframe.node
-        self._frame_nodes[frame.index] = keyframe.node
+        self._keyframe_node[frame.index] = keyframe.node
         return [KeyframeAdded(frame=frame.index, node=keyframe.node, pose=keyframe.pose, n_features=len(view),
                               reason=reason)]
 

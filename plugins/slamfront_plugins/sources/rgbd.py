@@ -37,6 +37,7 @@ KNOWN_CAMERAS = MappingProxyType(
 KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim", "slambook_room"]
 
 POSE_READERS = TRAJECTORY_READERS
+_FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
 class Intrinsics(PluginConfig):
@@ -58,6 +59,11 @@ class RgbdConfig(PluginConfig):
     start: int = Field(0, ge=0, description="first frame used")
     step: int = Field(1, ge=1, description="use every step-th frame")
     limit: int | None = Field(None, ge=1, description="at most this many frames")
+    flip_y: bool = Field(
+        False,
+        description="the poses use a y-up camera and world (ICL-NUIM's POV-Ray convention): "
+        "read them as diag(1,-1,1) T diag(1,-1,1), so they agree with the images",
+    )
 
 
 @dataclass(frozen=True)
@@ -109,7 +115,7 @@ class RgbdSequence(Source):
                 name=entry.color.name,
                 depth=depth,
                 camera=camera,
-                pose=entry.pose,
+                pose=entry.pose if entry.pose is None or not self.config.flip_y else _FLIP_Y @ entry.pose @ _FLIP_Y,
             )
 
 

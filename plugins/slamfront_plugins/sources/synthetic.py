@@ -116,28 +116,32 @@ class SyntheticWorld(Source):
         return order[:first] + [order[first + int(i)] for i in shuffled]
 
     def frames(self) -> Iterator[Frame]:
+        n = self.config.frames_per_traversal
+        dt = self.step_m / self.config.speed_mps
+        passes = len(self._passes())
+        # arrival times keep the unshuffled clock (a minute between passes): strictly increasing
+        arrival = [p * (n * dt + 60.0) + k * dt for p in range(passes) for k in range(n)]
+        for index, (pass_number, k) in enumerate(self.schedule()):
+            yield self.frame_at(pass_number, k, index, arrival[index])
+
+    def frame_at(self, pass_number: int, k: int, index: int = 0, timestamp: float = 0.0) -> Frame:
+        """Frame ``k`` of pass ``pass_number``, rendered on its own (random access, e.g. for benchmarks)."""
         c = self.config
         camera = self.camera
         n = c.frames_per_traversal
-        dt = self.step_m / c.speed_mps
-        passes = self._passes()
-        # arrival times keep the unshuffled clock (a minute between passes): strictly increasing
-        arrival = [p * (n * dt + 60.0) + k * dt for p in range(len(passes)) for k in range(n)]
-        for index, (pass_number, k) in enumerate(self.schedule()):
-            traversal, illumination, lateral, yaw, occluders = passes[pass_number]
-            pose = self.world.pose_at(k * self.step_m, lateral, yaw)
-            place = pass_number * n + k
-            image, depth = self.world.render(
-                pose, camera.matrix, camera.width, camera.height, Lighting.of(illumination),
-                occluders_at(c.seed + pass_number, k * dt, self.world.route, occluders),
-                noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + place, max_depth_m=c.max_depth_m,
-            )
-            sequence_index = k if traversal != "stream" else place
-            yield Frame(
-                index=index, timestamp=arrival[index], image=image, traversal=traversal,
-                sequence_index=sequence_index, name=f"{traversal}-{sequence_index:05d}", depth=depth,
-                camera=camera, pose=pose,
-            )
+        traversal, illumination, lateral, yaw, occluders = self._passes()[pass_number]
+        pose = self.world.pose_at(k * self.step_m, lateral, yaw)
+        place = pass_number * n + k
+        image, depth = self.world.render(
+            pose, camera.matrix, camera.width, camera.height, Lighting.of(illumination),
+            occluders_at(c.seed + pass_number, k * self.step_m / c.speed_mps, self.world.route, occluders),
+            noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + place, max_depth_m=c.max_depth_m,
+        )
+        sequence_index = k if traversal != "stream" else place
+        return Frame(
+            index=index, timestamp=timestamp, image=image, traversal=traversal, sequence_index=sequence_index,
+            name=f"{traversal}-{sequence_index:05d}", depth=depth, camera=camera, pose=pose,
+        )
 
     def loop_ground_truth(self) -> LoopGroundTruth:
         c = self.config
