@@ -28,7 +28,7 @@ from common import peak_rss_mb, publish, table  # noqa: E402
 from slamfront.core.thumbnail import thumbnail  # noqa: E402
 from slamfront.local_features import LocalFeatureExtractor  # noqa: E402
 from slamfront.matching import DEFAULT_MAX_DISTANCE, Matcher, MatchingConfig  # noqa: E402
-from slamfront_plugins.localizers.keyframe_map import KeyframeMap, View  # noqa: E402
+from slamfront_plugins.localizers.keyframe_map import TopologicalMap, View  # noqa: E402
 from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402
 
 SIZES = (10, 100, 1000, 10000)
@@ -65,7 +65,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     rows = []
     for n in sizes:
-        brute, preselect = KeyframeMap(matcher), KeyframeMap(matcher, candidates=CANDIDATES)
+        brute, preselect = TopologicalMap(matcher), TopologicalMap(matcher, candidates=CANDIDATES)
         for view, pose in nodes[:n]:
             brute.add(view, pose, None)
             preselect.add(view, pose, None)

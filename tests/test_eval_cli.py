@@ -111,7 +111,6 @@ def test_image_folder_with_poses_and_intrinsics(shared_data: Path) -> None:
     })
     frames = list(ImageFolder(config).frames())
     assert [f.sequence_index for f in frames] == [0, 2, 4]
-    truth = read_tum  # noqa: F841 (pose lines: compare with the reader directly)
     from slamfront.formats.poses import read_pose_lines
 
     poses = read_pose_lines(shared_data / "rgbd/room_sample/pose.txt").poses

@@ -16,7 +16,10 @@ from slamfront.runtime import RunResult, run_pipeline
 
 
 def kidnapped_recipe(shuffle: bool = True, **localizer: Any) -> dict[str, Any]:
-    """A reference drive and a second drive (0.3 m aside, turned 2°, occluders) given in random order."""
+    """A reference drive and a second drive (0.3 m aside, turned 2°, occluders) given in random order.
+
+    As ``recipes/synthetic_localize.yaml``, shorter: 50 places 3 m apart.
+    """
     return {
         "name": "kidnapped",
         "source": {"plugin": "synthetic", "params": {
@@ -24,7 +27,8 @@ def kidnapped_recipe(shuffle: bool = True, **localizer: Any) -> dict[str, Any]:
             "image_height": 240, "query_illumination": "day", "shuffle": shuffle, "shuffle_seed": 3,
         }},
         "descriptor": {"plugin": "local_features", "params": {"descriptor": "orb", "max_features": 500}},
-        "localizer": {"plugin": "keyframe", "params": {"pnp_refinement": True, **localizer}},
+        "localizer": {"plugin": "keyframe", "params": {
+            "matching": {"ratio": 0.8}, "pnp_refinement": True, **localizer}},
         "log": {"images": False},
     }
 

@@ -296,6 +296,15 @@ class RunMetrics(Message):
 # --- localization ----------------------------------------------------------------------
 
 
+def _pose_in_map(suffix: str, pose: np.ndarray | None, stamp_ns: int) -> list[tuple[str, Any]]:
+    """``[(suffix, foxglove.PoseInFrame)]`` for a known pose, else nothing."""
+    if pose is None:
+        return []
+    from slamfront.mcaplog import foxglove  # lazy: the log package imports this module
+
+    return [(suffix, foxglove.pose_in_frame(pose, stamp_ns))]
+
+
 @dataclass(frozen=True, eq=False)
 class PoseEstimate(Message):
     """A localizer's answer for one frame: the keyframe it recognised and the pose it infers.
@@ -332,11 +341,7 @@ class PoseEstimate(Message):
 
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         """The estimated pose as a ``PoseInFrame`` in ``map`` (suffix ``pose``)."""
-        if self.pose is None:
-            return []
-        from slamfront.mcaplog import foxglove  # lazy: the log package imports this module
-
-        return [("pose", foxglove.pose_in_frame(self.pose, stamp_ns))]
+        return _pose_in_map("pose", self.pose, stamp_ns)
 
 
 @dataclass(frozen=True, eq=False)
@@ -353,11 +358,7 @@ class KeyframeAdded(Message):
 
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         """The keyframe's pose as a ``PoseInFrame`` (suffix ``keyframe_pose``)."""
-        if self.pose is None:
-            return []
-        from slamfront.mcaplog import foxglove
-
-        return [("keyframe_pose", foxglove.pose_in_frame(self.pose, stamp_ns))]
+        return _pose_in_map("keyframe_pose", self.pose, stamp_ns)
 
 
 @dataclass(frozen=True, eq=False)

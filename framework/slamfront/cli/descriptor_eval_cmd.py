@@ -108,7 +108,6 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
-    metrics = _finite(metrics)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
     (out / "report.md").write_text(_report(study, args.source, figures))
     if args.json:
@@ -179,17 +178,6 @@ def _plots(study: DescriptorEvaluation, out: Path) -> list[str]:
         out / "distances.png", "distances: ratio-tested RANSAC matches (±3 frames) vs nearest neighbours in the 5 least similar frames",
     )
     return [local.name, distances.name]
-
-
-def _finite(value: object) -> object:
-    """NaN becomes null: metrics.json is strict JSON."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def _plain(value: object) -> object:

@@ -100,10 +100,15 @@ def trajectories_2d(
             ax.plot(points[:, a], points[:, b], label=label, linewidth=1.2)
     for segment in markers:
         ax.plot(segment[:, a], segment[:, b], color="tab:red", linewidth=0.6, alpha=0.6)
+    return _save_top_view(plt, fig, ax, (a, b), title or "trajectory", path)
+
+
+def _save_top_view(plt: Any, fig: Any, ax: Any, axes: tuple[int, int], title: str, path: Path) -> Path:
+    """Equal-aspect metric axes, grid, legend; write the PNG and close the figure."""
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("xyz"[a] + " [m]")
-    ax.set_ylabel("xyz"[b] + " [m]")
-    ax.set_title(title or "trajectory")
+    ax.set_xlabel("xyz"[axes[0]] + " [m]")
+    ax.set_ylabel("xyz"[axes[1]] + " [m]")
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -137,16 +142,7 @@ def localization_plot(
     if len(keyframes):
         ax.scatter(keyframes[:, a], keyframes[:, b], s=40, marker="^", facecolors="none", edgecolors="tab:green",
                    label=f"keyframes ({len(keyframes)})", zorder=4)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("xyz"[a] + " [m]")
-    ax.set_ylabel("xyz"[b] + " [m]")
-    ax.set_title(title or "localization")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save_top_view(plt, fig, ax, (a, b), title or "localization", path)
 
 
 def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", xlabel: str = "", ylabel: str = "") -> Path:
@@ -177,9 +173,7 @@ def local_test(offsets: np.ndarray, curves: Mapping[str, Mapping[int, np.ndarray
     """
     plt = _pyplot()
     targets = sorted({t for per_target in curves.values() for t in per_target})
-    columns = min(len(targets), 2) or 1
-    rows = max(1, int(np.ceil(len(targets) / columns)))
-    fig, axes = plt.subplots(rows, columns, figsize=(5.2 * columns, 3.2 * rows), dpi=100, squeeze=False)
+    fig, axes = _panels(plt, len(targets), 2, (5.2, 3.2))
     for ax, target in zip(axes.ravel(), targets):
         for label, per_target in curves.items():
             if target in per_target:
@@ -189,10 +183,22 @@ def local_test(offsets: np.ndarray, curves: Mapping[str, Mapping[int, np.ndarray
         ax.set_xlabel("frame offset from target")
         ax.set_ylabel("matches after RANSAC")
         ax.grid(alpha=0.3)
-    for ax in axes.ravel()[len(targets):]:
+    return _save_panels(plt, fig, axes, len(targets), title or "local test", path)
+
+
+def _panels(plt: Any, count: int, columns: int, size: tuple[float, float]) -> tuple[Any, np.ndarray]:
+    """A grid of at least ``count`` panels, ``columns`` wide at most."""
+    columns = min(count, columns) or 1
+    rows = max(1, int(np.ceil(count / columns)))
+    return plt.subplots(rows, columns, figsize=(size[0] * columns, size[1] * rows), dpi=100, squeeze=False)
+
+
+def _save_panels(plt: Any, fig: Any, axes: np.ndarray, used: int, title: str, path: Path) -> Path:
+    """Blank the unused panels, put the legend in the first, write the PNG and close the figure."""
+    for ax in axes.ravel()[used:]:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=7)
-    fig.suptitle(title or "local test")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -208,23 +214,16 @@ def distance_histograms(
     """
     plt = _pyplot()
     labels = list(samples)
-    columns = min(len(labels), 3) or 1
-    rows = max(1, int(np.ceil(len(labels) / columns)))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.0 * rows), dpi=100, squeeze=False)
+    fig, axes = _panels(plt, len(labels), 3, (4.2, 3.0))
     for ax, label in zip(axes.ravel(), labels):
         verified, unrelated, threshold = samples[label]
         both = np.concatenate([verified, unrelated]) if len(verified) + len(unrelated) else np.zeros(1)
         bins = np.linspace(0, float(np.max(both)) * 1.02 + 1e-9, 40)
-        ax.hist(unrelated, bins=bins, alpha=0.5, density=True, color="tab:red", label="nearest, unrelated frames")
-        ax.hist(verified, bins=bins, alpha=0.5, density=True, color="tab:green", label="verified, neighbouring frames")
+        if len(unrelated):
+            ax.hist(unrelated, bins=bins, alpha=0.5, density=True, color="tab:red", label="nearest, unrelated frames")
+        if len(verified):
+            ax.hist(verified, bins=bins, alpha=0.5, density=True, color="tab:green", label="verified, neighbouring frames")
         ax.axvline(threshold, color="black", linewidth=1, linestyle="--", label=f"threshold {threshold:g}")
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("descriptor distance")
-    for ax in axes.ravel()[len(labels):]:
-        ax.axis("off")
-    axes.ravel()[0].legend(fontsize=7)
-    fig.suptitle(title or "match distances")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save_panels(plt, fig, axes, len(labels), title or "match distances", path)

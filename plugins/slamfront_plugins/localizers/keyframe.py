@@ -13,9 +13,9 @@ from slamfront.core.pnp import backproject
 from slamfront.core.thumbnail import thumbnail
 from slamfront.matching import Matcher, MatchingConfig, resolve_max_distance
 from slamfront.messages import Features, KeyframeAdded, KeyframeMap, Message, PoseEstimate
+from tqdm import tqdm
 
-from slamfront_plugins.localizers.keyframe_map import KeyframeMap as Map
-from slamfront_plugins.localizers.keyframe_map import View
+from slamfront_plugins.localizers.keyframe_map import TopologicalMap, View
 
 
 class KeyframeLocalizer(Localizer):
@@ -73,7 +73,7 @@ class KeyframeLocalizer(Localizer):
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
         self._descriptor_type: str | None = None
-        self._map: Map | None = None
+        self._map: TopologicalMap | None = None
         self._current = -1
         self._pending: list[View] = []
         self._keyframe_node: dict[int, int] = {}  # frame index -> node, for frames that became keyframes
@@ -92,16 +92,16 @@ class KeyframeLocalizer(Localizer):
         resolve_max_distance(self.config.matching, self._descriptor_type)
 
     @property
-    def map(self) -> Map:
+    def map(self) -> TopologicalMap:
         """The keyframe map (built at the first frame, when the descriptor's metric is known)."""
         if self._map is None:
             raise PluginError("the keyframe map is created at the first frame")
         return self._map
 
-    def _make_map(self, metric: str) -> Map:
+    def _make_map(self, metric: str) -> TopologicalMap:
         c = self.config
         matcher = Matcher(c.matching, metric, resolve_max_distance(c.matching, self._descriptor_type))
-        return Map(matcher, None if c.preselection == "none" else c.candidates)
+        return TopologicalMap(matcher, None if c.preselection == "none" else c.candidates)
 
     # --- per frame ------------------------------------------------------------------
 
@@ -125,7 +125,9 @@ class KeyframeLocalizer(Localizer):
 
     def finish(self) -> Sequence[Message]:
         out: list[Message] = []
-        for view in self._pending:
+        pending = tqdm(self._pending, desc="localizing against the keyframes", unit="frame", leave=False,
+                       disable=None if len(self._pending) > 50 else True)  # None: only on a terminal
+        for view in pending:
             exclude = self._keyframe_node.get(view.frame, -1) if self.config.exclude_self else -1
             out.append(self._localize(view, exclude))
         self._pending = []

@@ -72,7 +72,7 @@ class Ranked:
         return self.matches[1].inliers if len(self.matches) > 1 else 0
 
 
-class KeyframeMap:
+class TopologicalMap:
     """Keyframes with brute-force or pre-selected comparison.
 
     :param matcher: the two-image matcher.
