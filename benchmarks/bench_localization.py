@@ -27,6 +27,7 @@ import cv2
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import publish, table  # noqa: E402
+
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402
 from slamfront.runtime import run_pipeline  # noqa: E402
 

@@ -25,6 +25,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import peak_rss_mb, publish, table  # noqa: E402
+
 from slamfront.core.thumbnail import thumbnail  # noqa: E402
 from slamfront.local_features import LocalFeatureExtractor  # noqa: E402
 from slamfront.matching import DEFAULT_MAX_DISTANCE, Matcher, MatchingConfig  # noqa: E402

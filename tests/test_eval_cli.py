@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from slamfront.formats.poses import Trajectory, read_tum, write_tum
 
+from slamfront.formats.poses import Trajectory, read_tum, write_tum
 from tests.test_cli import _one_line_error
 from tests.test_rgbd_sources import _tum_fixture
 

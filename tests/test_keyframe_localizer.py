@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from slamfront.formats.poses import read_tum
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.recipe import build_pipeline, load_recipe, parse_recipe

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.geometry import invert
 from slamfront.core.pnp import backproject, pnp_ransac
 from slamfront.errors import PluginError

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.alignment import ate_rmse, umeyama
 from slamfront.core.errors import CoreError
 from slamfront.core.trajectory import (

@@ -1,7 +1,6 @@
 """Built-in localizers."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.localizers.keyframe import KeyframeLocalizer
 
 

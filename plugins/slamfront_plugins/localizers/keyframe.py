@@ -8,13 +8,13 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+from tqdm import tqdm
+
 from slamfront import DataError, Frame, Localizer, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.pnp import backproject
 from slamfront.core.thumbnail import thumbnail
 from slamfront.matching import Matcher, MatchingConfig, resolve_max_distance
 from slamfront.messages import Features, KeyframeAdded, KeyframeMap, Message, PoseEstimate
-from tqdm import tqdm
-
 from slamfront_plugins.localizers.keyframe_map import TopologicalMap, View
 
 

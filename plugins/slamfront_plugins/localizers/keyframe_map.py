@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.geometry import invert
 from slamfront.core.pnp import pnp_ransac

@@ -9,11 +9,11 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
 from slamfront.imageio import list_images, read_image
-
 from slamfront_plugins.sources.rgbd import KNOWN_CAMERAS, Intrinsics, KnownCamera
 
 
