@@ -376,8 +376,6 @@ class PoseEstimate(Message):
     """(K,) int64 frame indices of the keyframes compared in full, most similar first."""
     n_compared: int = 0
     """Keyframes matched in full (all of them without pre-selection)."""
-    latency_ms: float = 0.0
-    """Wall time of this localization (matching, RANSAC, PnP), milliseconds."""
     reason: str = ""
 
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:

@@ -50,7 +50,6 @@ class LocalizationEvaluation(Evaluation):
                                     markdown="No frame was localized (no PoseEstimate messages).\n")
         estimates = [self._estimates[f] for f in sorted(self._estimates)]
         localized = [e for e in estimates if e.pose is not None]
-        latency = np.array([e.latency_ms for e in estimates], dtype=np.float64)
         metrics: dict[str, float | int | str | None] = {
             "n_keyframes": len(self._keyframes),
             "n_localization_queries": len(estimates),
@@ -58,10 +57,6 @@ class LocalizationEvaluation(Evaluation):
             "n_too_few_features": sum(e.reason.startswith("too few features") for e in estimates),
             "fraction_localized": len(localized) / len(estimates),
             "n_refined": sum(e.refined for e in estimates),
-            "localization_latency_median_ms": float(np.median(latency)),
-            "localization_latency_p99_ms": float(np.percentile(latency, 99)),
-            "localization_latency_mean_ms": float(latency.mean()),
-            "localization_latency_max_ms": float(latency.max()),
         }
         scored = [e for e in localized if self._truth.get(e.frame, (0, "", 0, None))[3] is not None]
         figures: list[str] = []
@@ -77,7 +72,9 @@ class LocalizationEvaluation(Evaluation):
         reasons = Counter(re.sub(r"\d+", "N", e.reason) for e in estimates if e.pose is None)
         if reasons:
             notes.append("Not localized: " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common()) + ".")
-        table = "\n".join(["| metric | value |", "| --- | --- |", *(f"| {k} | {_fmt(v)} |" for k, v in metrics.items())])
+        # the localizer's own timings are already in metrics.json (stage statistics); show them here too
+        shown = {**metrics, **{k: v for k, v in context.statistics.items() if k.startswith("localization_latency")}}
+        table = "\n".join(["| metric | value |", "| --- | --- |", *(f"| {k} | {_fmt(v)} |" for k, v in shown.items())])
         markdown = "\n\n".join([*notes, table, *(f"![{f}]({f})" for f in figures)]) + "\n"
         if scored:
             markdown += (
