@@ -151,3 +151,18 @@ def test_a_localization_run_replays_bit_for_bit(cli, tmp_path: Path, shared_data
     assert code == 0 and out.startswith("identical"), out
     first, again = (json.loads((tmp_path / d / "metrics.json").read_text()) for d in ("run", "replay"))
     assert again["ate_rmse_m"] == first["ate_rmse_m"] and again["n_keyframes"] == first["n_keyframes"]
+
+
+def test_loop10_revisits_found_without_poses(tmp_path: Path, shared_data: Path) -> None:
+    """images/loop10 (no poses): leave-one-out, each revisit finds its twin (10.png <-> 1.png,
+    5.png <-> 6.png); the run reports the localization and says there is nothing to score."""
+    raw = {
+        "name": "loop10", "source": {"plugin": "image_folder", "params": {"folder": "images/loop10"}},
+        "descriptor": {"plugin": "local_features", "params": {"descriptor": "orb", "max_features": 1000}},
+        "localizer": {"plugin": "keyframe", "params": {"exclude_self": True}}, "eval": {"plots": False},
+    }
+    result = _run(raw, tmp_path)
+    chosen = {m.decoded.frame: m.decoded.keyframe for m in read_messages(result.log_path, ["/localizer/pose_estimate"])}
+    assert (chosen[9], chosen[0], chosen[4], chosen[5]) == (0, 9, 5, 4)
+    assert result.metrics["n_frames_localized"] == 10 and "ate_rmse_m" not in result.metrics
+    assert "No localized frame has a ground-truth pose" in result.report_path.read_text()

@@ -49,7 +49,7 @@ class LocalizationEvaluation(Evaluation):
             return EvaluationReport(self.title, metrics={"n_keyframes": len(self._keyframes)},
                                     markdown="No frame was localized (no PoseEstimate messages).\n")
         estimates = [self._estimates[f] for f in sorted(self._estimates)]
-        localized = [e for e in estimates if e.pose is not None]
+        localized = [e for e in estimates if e.keyframe >= 0]
         metrics: dict[str, float | int | str | None] = {
             "n_keyframes": len(self._keyframes),
             "n_localization_queries": len(estimates),
@@ -58,7 +58,9 @@ class LocalizationEvaluation(Evaluation):
             "fraction_localized": len(localized) / len(estimates),
             "n_refined": sum(e.refined for e in estimates),
         }
-        scored = [e for e in localized if self._truth.get(e.frame, (0, "", 0, None))[3] is not None]
+        # a keyframe without a pose (no ground truth for it) localizes topologically only
+        scored = [e for e in localized
+                  if e.pose is not None and self._truth.get(e.frame, (0, "", 0, None))[3] is not None]
         figures: list[str] = []
         notes = []
         if scored:
@@ -69,7 +71,7 @@ class LocalizationEvaluation(Evaluation):
                 figures = self._plots(context.out_dir, scored)
         else:
             notes.append("No localized frame has a ground-truth pose: no ATE/RPE.")
-        reasons = Counter(re.sub(r"\d+", "N", e.reason) for e in estimates if e.pose is None)
+        reasons = Counter(re.sub(r"\d+", "N", e.reason) for e in estimates if e.keyframe < 0)
         if reasons:
             notes.append("Not localized: " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common()) + ".")
         # the localizer's own timings are already in metrics.json (stage statistics); show them here too
