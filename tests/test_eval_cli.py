@@ -20,6 +20,13 @@ def fr1(shared_data: Path) -> tuple[Path, Path]:
     return folder / "groundtruth.txt", folder / "estimated.txt"
 
 
+def test_help(cli) -> None:
+    for command in (["eval"], ["eval", "traj"], ["eval", "descriptors"]):
+        with pytest.raises(SystemExit) as exit_info:
+            cli(*command, "--help")
+        assert exit_info.value.code == 0
+
+
 def test_eval_traj_prints_ate_and_rpe(cli, fr1: tuple[Path, Path], tmp_path: Path) -> None:
     code, out, err = cli("eval", "traj", *fr1, "--max-difference", "0.01", "--plot", tmp_path / "t.png")
     assert code == 0, err
