@@ -3,8 +3,9 @@
 from slamfront import hookimpl
 
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
+from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
 
 
 @hookimpl
 def slamfront_loop_detectors() -> list[type]:
-    return [NearestNeighbour]
+    return [NearestNeighbour, SeqSlam, SeqSlamFast]
