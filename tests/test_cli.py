@@ -8,8 +8,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from slamfront.mcaplog.reader import read_messages, summarize
 
+from slamfront.mcaplog.reader import read_messages, summarize
 from tests.helpers import small_synthetic_recipe
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from slamfront.mcaplog.reader import summarize
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline

@@ -1,7 +1,6 @@
 """Built-in descriptors."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
 from slamfront_plugins.descriptors.seqslam_thumbnail import SeqSlamThumbnail

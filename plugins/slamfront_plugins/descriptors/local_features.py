@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from functools import cached_property
 
 from pydantic import Field, field_validator, model_validator
+
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.local_features import (
     DESCRIPTORS,

@@ -1,7 +1,6 @@
 """Built-in loop detectors."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
 

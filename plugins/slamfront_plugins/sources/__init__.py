@@ -1,7 +1,6 @@
 """Built-in sources."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.sources.image_folder import ImageFolder
 from slamfront_plugins.sources.rgbd import RgbdFolder, TumRgbd
 from slamfront_plugins.sources.synthetic import SyntheticWorld

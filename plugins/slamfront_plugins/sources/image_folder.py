@@ -7,6 +7,7 @@ from functools import cached_property
 from pathlib import Path
 
 from pydantic import Field
+
 from slamfront import Frame, PluginConfig, Source
 from slamfront.data import DataPath
 from slamfront.imageio import list_images, read_image

@@ -17,6 +17,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
 from slamfront.formats.poses import (

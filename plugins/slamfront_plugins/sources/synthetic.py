@@ -8,10 +8,10 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.frame import Traversal
-
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
 
 
