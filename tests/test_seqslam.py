@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront.core.errors import CoreError
 from slamfront.core.seqslam import (
     best_match,

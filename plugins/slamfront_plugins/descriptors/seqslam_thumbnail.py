@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.core.seqslam import patch_normalise
 from slamfront.messages import Features

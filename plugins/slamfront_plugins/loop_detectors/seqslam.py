@@ -14,6 +14,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.seqslam import (
