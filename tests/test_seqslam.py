@@ -52,11 +52,17 @@ def test_patch_normalisation_leaves_a_partial_border() -> None:
 def test_difference_is_mean_absolute_difference_and_chunk_independent() -> None:
     rng = np.random.default_rng(1)
     refs, queries = rng.random((30, 16), np.float32) * 255, rng.random((7, 16), np.float32) * 255
-    d = difference_columns(refs, queries, chunk=3)
+    d = difference_columns(refs, queries, max_elements=3 * 30 * 16)
     assert d.shape == (30, 7)
     assert d[4, 5] == pytest.approx(np.abs(refs[4] - queries[5]).mean(), rel=1e-6)
-    assert np.array_equal(d, difference_columns(refs, queries, chunk=64))
+    assert np.array_equal(d, difference_columns(refs, queries))
     assert np.array_equal(d[:, 2:3], difference_columns(refs, queries[2:3]))
+    # the uint8 (OpenCV) path gives the same bits as the float path on integer images
+    small_refs, small_queries = refs.astype(np.uint8), queries.astype(np.uint8)
+    assert np.array_equal(
+        difference_columns(small_refs, small_queries),
+        difference_columns(small_refs.astype(np.float32), small_queries.astype(np.float32)),
+    )
 
 
 def test_contrast_enhancement_by_hand() -> None:
@@ -147,11 +153,11 @@ def _feed(detector, references: np.ndarray, queries: np.ndarray) -> list[LoopRes
 def _route(n: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A random reference route and a noisy, slightly slower re-traversal of it."""
     rng = np.random.default_rng(seed)
-    places = rng.random((n, 64)).astype(np.float32) * 255
+    places = rng.random((n, 64)) * 255
     # the query drives at 0.9x speed: query q sees place floor(q * 0.9) with noise
     q_places = np.floor(np.arange(int(n / 0.9) - 2) * 0.9).astype(int)
-    queries = places[q_places] + rng.normal(0, noise, (len(q_places), 64)).astype(np.float32)
-    return places, queries
+    queries = places[q_places] + rng.normal(0, noise, (len(q_places), 64))
+    return np.clip(places, 0, 255).astype(np.uint8), np.clip(queries, 0, 255).astype(np.uint8)
 
 
 @pytest.mark.parametrize("cls", [SeqSlam, SeqSlamFast])

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from slamfront.core.errors import CoreError
@@ -61,27 +62,40 @@ def patch_normalise(image: np.ndarray, side: int = 8) -> np.ndarray:
     return out
 
 
-def difference_columns(references: np.ndarray, queries: np.ndarray, chunk: int = 64) -> np.ndarray:
+def difference_columns(references: np.ndarray, queries: np.ndarray, max_elements: int = 1 << 25) -> np.ndarray:
     """(R, Q) float32 mean absolute differences between reference and query vectors.
 
     :param references: (R, P) descriptors (e.g. patch-normalised thumbnails).
     :param queries: (Q, P).
-    :param chunk: queries per block; memory is ``chunk * R * P`` floats.
+    :param max_elements: bound on the temporary arrays (float path), in elements.
 
-    Each entry is computed the same way whatever the chunking, so batch and online
-    use give identical bits.
+    uint8 inputs (thumbnails) take OpenCV's SIMD absolute difference with exact integer
+    sums; others a chunked float32 NumPy path. Either way each entry is computed the
+    same whatever the chunking, so batch and online use give identical bits.
     """
-    references = np.asarray(references, dtype=np.float32)
-    queries = np.atleast_2d(np.asarray(queries, dtype=np.float32))
+    references = np.asarray(references)
+    queries = np.atleast_2d(np.asarray(queries))
     if references.shape[1] != queries.shape[1]:
-        raise CoreError(f"reference and query descriptors differ in length: {references.shape[1]} vs {queries.shape[1]}")
-    out = np.empty((len(references), len(queries)), dtype=np.float32)
-    pixels = np.float32(references.shape[1])
+        raise CoreError(
+            f"reference and query descriptors differ in length: {references.shape[1]} vs {queries.shape[1]}"
+        )
+    n_ref, pixels = references.shape
+    out = np.empty((n_ref, len(queries)), dtype=np.float32)
+    if references.dtype == np.uint8 and queries.dtype == np.uint8:
+        for j, query in enumerate(queries):
+            absolute = cv2.absdiff(references, np.broadcast_to(query, references.shape).copy())
+            out[:, j] = cv2.reduce(absolute, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[:, 0]
+        out /= np.float32(pixels)
+        return out
+    references = references.astype(np.float32, copy=False)
+    queries = queries.astype(np.float32, copy=False)
+    chunk = max(1, max_elements // max(n_ref * pixels, 1))
     for start in range(0, len(queries), chunk):
         block = queries[start : start + chunk]
-        out[:, start : start + len(block)] = (
-            np.abs(references[:, None, :] - block[None, :, :]).sum(axis=2, dtype=np.float32) / pixels
+        out[:, start : start + len(block)] = np.abs(references[:, None, :] - block[None, :, :]).sum(
+            axis=2, dtype=np.float32
         )
+    out /= np.float32(pixels)
     return out
 
 

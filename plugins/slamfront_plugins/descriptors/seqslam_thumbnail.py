@@ -18,8 +18,8 @@ class SeqSlamThumbnail(Descriptor):
 
     Defaults are OpenSeqSLAM 2013's (64x32, patches of 8); the seed paper used 32x32.
     An image already of the target size is not resampled (OpenSeqSLAM reads Nordland's
-    64x32 images as they are). The vector holds the normalised pixel values (0..255) as
-    float32, compared by mean absolute difference (``l1``).
+    64x32 images as they are). The vector holds the normalised pixel values as uint8,
+    compared by mean absolute difference (``l1``).
     """
 
     name = "seqslam_thumbnail"
@@ -38,14 +38,14 @@ class SeqSlamThumbnail(Descriptor):
             return self
 
     def describe(self, image: np.ndarray) -> np.ndarray:
-        """(width * height,) float32 preprocessed thumbnail of an RGB or grey uint8 image."""
+        """(width * height,) uint8 preprocessed thumbnail of an RGB or grey uint8 image."""
         c = self.config
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         if grey.shape != (c.height, c.width):
             grey = cv2.resize(grey, (c.width, c.height), interpolation=cv2.INTER_LANCZOS4)
         if c.normalise:
             grey = patch_normalise(grey, c.patch_size)
-        return grey.astype(np.float32).ravel()
+        return np.ascontiguousarray(grey).ravel()
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         return [Features(frame=inputs.frame.index, vector=self.describe(inputs.frame.image), metric="l1")]

@@ -45,7 +45,7 @@ class SeqSlamConfig(PluginConfig):
         description="shift making scores >= 0: the matrix minimum (OpenSeqSLAM, batch only) or its lower bound",
     )
     candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
-    chunk: int = Field(256, ge=1, description="queries per block of the difference matrix (memory bound)")
+    chunk: int = Field(256, ge=1, description="queries per block in batch mode (memory: references x chunk)")
 
     @model_validator(mode="after")
     def _consistent(self) -> SeqSlamConfig:
@@ -103,7 +103,7 @@ class _SequenceDetector(LoopDetector):
             if self._query_frames:
                 raise PluginError(f"reference frame {frame.index} arrived after the queries started")
             if self._references is None:
-                self._references = GrowingRows(len(features.vector), np.float32)
+                self._references = GrowingRows(len(features.vector), features.vector.dtype)
             elif len(features.vector) != self._references.view.shape[1]:
                 raise PluginError(
                     f"frame {frame.index}: descriptor length {len(features.vector)} differs from "
@@ -119,9 +119,13 @@ class _SequenceDetector(LoopDetector):
             )
         self._query_frames.append(frame.index)
         if self.config.mode == "batch":
-            self._query_vectors.append(features.vector.astype(np.float32))
+            self._query_vectors.append(features.vector)
             return []
         return self._online(frame.index, features.vector)
+
+    def _as_reference_type(self, vectors: np.ndarray) -> np.ndarray:
+        assert self._references is not None
+        return vectors.astype(self._references.view.dtype, copy=False)
 
     def _no_answer(self, frame: int, reason: str) -> LoopResult:
         return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason=reason)
@@ -138,7 +142,7 @@ class _SequenceDetector(LoopDetector):
         problem = self._too_few_references()
         if problem:
             return [self._no_answer(frame, problem)]
-        column, rows = self._columns(vector[None, :].astype(np.float32))
+        column, rows = self._columns(self._as_reference_type(vector[None, :]))
         self._window.append((frame, column[:, 0], rows[0]))
         if len(self._query_frames) <= half:
             return [self._no_answer(frame, f"among the first ds/2 = {half} queries")]
@@ -163,7 +167,7 @@ class _SequenceDetector(LoopDetector):
         if problem or len(frames) < c.ds + 1:
             reason = problem or f"{len(frames)} queries are fewer than a sequence of ds + 1 = {c.ds + 1}"
             return [self._no_answer(f, reason) for f in frames]
-        queries = np.stack(self._query_vectors)
+        queries = self._as_reference_type(np.stack(self._query_vectors))
         offset = enhanced_lower_bound(c.contrast_window)
         if c.score_offset == "global_min":
             offset = min(float(self._columns(queries[s : s + c.chunk])[0].min()) for s in range(0, len(queries), c.chunk))
@@ -231,7 +235,7 @@ class SeqSlam(_SequenceDetector):
 
     def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
         assert self._references is not None
-        differences = difference_columns(self._references.view, queries, chunk=self.config.chunk)
+        differences = difference_columns(self._references.view, queries)
         return enhance_contrast(differences, self.config.contrast_window), [None] * len(queries)
 
 
@@ -266,7 +270,7 @@ class SeqSlamFast(_SequenceDetector):
         references = self._references.view
         k = min(self.config.k, len(references))
         if self.config.knn == "exact":
-            distances = difference_columns(references, queries, chunk=self.config.chunk)
+            distances = difference_columns(references, queries)
             return np.argpartition(distances, k - 1, axis=0)[:k].T
         import faiss  # optional: only the approximate mode needs it
 
