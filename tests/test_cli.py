@@ -23,7 +23,7 @@ def _one_line_error(code: int, err: str) -> str:
 
 
 def test_help_everywhere(cli) -> None:
-    for command in ([], ["run"], ["plugins"], ["inspect"], ["recipes"]):
+    for command in ([], ["run"], ["replay"], ["plugins"], ["inspect"], ["diff"], ["recover"], ["recipes"]):
         with pytest.raises(SystemExit) as exit_info:
             cli(*command, "--help")
         assert exit_info.value.code == 0

@@ -125,6 +125,11 @@ class Stage(Plugin):
     requires: ClassVar[tuple[Kind, ...]] = ()
     """Stage kinds that must run before this one (checked when the recipe is loaded)."""
 
+    reads_pixels: ClassVar[bool] = False
+    """Whether :meth:`process` reads ``frame.image`` or ``frame.depth``. A replay
+    (``slamfront replay``) re-runs such a stage only from a log that stores them exactly
+    (``log.image_format: png`` at full width, depth as ``32FC1``)."""
+
     def process(self, inputs: StageInputs) -> Sequence[Message]:
         """Process one frame; return this stage's outputs (possibly about earlier frames)."""
         raise NotImplementedError
@@ -142,6 +147,7 @@ class Descriptor(Stage):
     """Frame -> global vector and/or local keypoints with descriptors (``Features``)."""
 
     kind: ClassVar[Kind] = "descriptor"
+    reads_pixels: ClassVar[bool] = True
     produces_global: ClassVar[bool] = False
     produces_local: ClassVar[bool] = False
 
@@ -163,12 +169,14 @@ class Localizer(Stage):
     """Frame -> pose or node in a keyframe map."""
 
     kind: ClassVar[Kind] = "localizer"
+    reads_pixels: ClassVar[bool] = True
 
 
 class Registration(Stage):
     """Point clouds -> relative transforms and a global model."""
 
     kind: ClassVar[Kind] = "registration"
+    reads_pixels: ClassVar[bool] = True
 
 
 class Backend(Stage):

@@ -40,9 +40,19 @@ class LogOptions(_Strict):
     image_max_width: int = Field(320, ge=16, description="downscale logged images to this width")
     image_format: Literal["jpeg", "png"] = Field("jpeg", description="png is lossless")
     jpeg_quality: int = Field(80, ge=1, le=100)
-    depth: bool = Field(False, description="log depth images (foxglove.RawImage, 16-bit mm)")
+    depth: bool = Field(False, description="log depth images (foxglove.RawImage)")
+    depth_encoding: Literal["16UC1", "32FC1"] = Field(
+        "16UC1", description="16UC1: millimetres (compact); 32FC1: float32 metres, exact (replayable)"
+    )
+    points: bool = Field(False, description="log each depth frame as a foxglove.PointCloud in the camera frame")
+    points_stride: int = Field(4, ge=1, description="point clouds use every n-th pixel in each direction")
+    scene: bool = Field(True, description="log the path and loop closures for Foxglove's 3-D panel (/scene/map)")
+    scene_every: int = Field(20, ge=1, description="update /scene/map every this many frames")
     compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+    sync_seconds: float | None = Field(
+        5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
+    )
 
 
 class EvalOptions(_Strict):
@@ -197,12 +207,18 @@ class Pipeline:
 
 
 def build_pipeline(
-    recipe: Recipe, origin: str, registry: PluginRegistry | None = None, data: Path | None = None
+    recipe: Recipe,
+    origin: str,
+    registry: PluginRegistry | None = None,
+    data: Path | None = None,
+    source: Source | None = None,
 ) -> Pipeline:
     """Construct every plugin of ``recipe`` from its validated params and check them.
 
     :param origin: the recipe's file name, for messages.
     :param data: data root for relative paths (default :func:`slamfront.data.data_root`).
+    :param source: use this source instead of constructing ``recipe.source`` (a replay
+        reads its frames from a log).
     :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
     :raises PluginError: a plugin is unknown or incompatible with another.
     """
@@ -212,6 +228,9 @@ def build_pipeline(
     context = {"data_root": data or data_root()}
     plugins: dict[Kind, Plugin] = {}
     for kind, spec in recipe.stage_specs().items():
+        if kind == "source" and source is not None:
+            plugins[kind] = source
+            continue
         try:
             info = registry.get(kind, spec.plugin)
         except PluginError as exc:

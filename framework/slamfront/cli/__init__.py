@@ -12,16 +12,16 @@ import sys
 from collections.abc import Sequence
 
 import slamfront
-from slamfront.cli import inspect_cmd, plugins_cmd, recipes_cmd, run_cmd
+from slamfront.cli import diff_cmd, inspect_cmd, plugins_cmd, recipes_cmd, recover_cmd, replay_cmd, run_cmd
 from slamfront.errors import SlamfrontError
 
-COMMANDS = (run_cmd, plugins_cmd, inspect_cmd, recipes_cmd)
+COMMANDS = (run_cmd, replay_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slamfront",
-        description="Plugin-based visual SLAM front end: run recipes, inspect logs, list plugins.",
+        description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins.",
     )
     parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
