@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from slamfront.data import checkout_root, data_root
 from slamfront.errors import PluginError, RecipeError
-from slamfront.plugin import STAGE_KINDS, Kind, Plugin, Source, Stage
+from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 
 
@@ -60,6 +60,15 @@ class EvalOptions(_Strict):
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
     recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[int] = Field(
+        default_factory=list,
+        description="also score loops at these tolerances (zeta), for sources that support it; "
+        "metrics get the suffix _zeta<t>",
+    )
+    retrieval_max_k: int = Field(
+        20, ge=0, description="descriptor retrieval: recall when a correct reference is among the psi "
+        "nearest, psi = 1..this (seed 000 figs 4.1/4.2); 0 turns it off",
+    )
 
 
 class Recipe(_Strict):
@@ -98,23 +107,28 @@ def recipes_dir() -> Path:
     return checkout_root() / "recipes"
 
 
-def find_recipe(name_or_path: str | Path) -> Path:
-    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
+    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = recipes_dir() / f"{name_or_path}.yaml"
+    shipped = folder / f"{name_or_path}.yaml"
     if path.suffix == "" and shipped.exists():
         return shipped
-    raise RecipeError(f"{name_or_path}: no such recipe file (shipped recipes: `slamfront recipes`)")
+    raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
-def read_recipe_dict(path: Path) -> dict[str, Any]:
-    """Parse a recipe file to a dict, with the file named in any error."""
+def find_recipe(name_or_path: str | Path) -> Path:
+    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+    return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
+
+
+def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
+    """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
     try:
         text = path.read_text()
     except OSError as exc:
-        raise RecipeError(f"{path}: cannot read recipe: {exc.strerror or exc}") from exc
+        raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -122,9 +136,14 @@ def read_recipe_dict(path: Path) -> dict[str, Any]:
         where = f":{mark.line + 1}" if mark is not None else ""
         raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
     if not isinstance(raw, dict):
-        raise RecipeError(f"{path}: a recipe must be a YAML mapping, got {type(raw).__name__}")
+        raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
     raw.setdefault("name", path.stem)
     return raw
+
+
+def read_recipe_dict(path: Path) -> dict[str, Any]:
+    """Parse a recipe file to a dict, with the file named in any error."""
+    return read_yaml_mapping(path, "recipe")
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
@@ -206,6 +225,33 @@ class Pipeline:
         return [self.plugins[k] for k in STAGE_KINDS if k in self.plugins]  # type: ignore[misc]
 
 
+def validate_stage_params(
+    recipe: Recipe, origin: str, registry: PluginRegistry, data: Path | None = None
+) -> dict[Kind, tuple[type[Plugin], PluginConfig]]:
+    """Find every stage's plugin class and validate its params, constructing nothing.
+
+    Cheap enough to check many recipes up front (a campaign does, before its first run).
+
+    :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
+    :raises PluginError: a plugin is unknown or a plugin module cannot be imported.
+    """
+    for module in recipe.plugin_modules:
+        registry.register_module(module)
+    context = {"data_root": data or data_root()}
+    configs: dict[Kind, tuple[type[Plugin], PluginConfig]] = {}
+    for kind, spec in recipe.stage_specs().items():
+        try:
+            info = registry.get(kind, spec.plugin)
+        except PluginError as exc:
+            raise PluginError(f"{origin}: {kind}.plugin: {exc}") from exc
+        try:
+            config = info.cls.Config.model_validate(spec.params, context=context)
+        except ValidationError as exc:
+            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
+        configs[kind] = (info.cls, config)
+    return configs
+
+
 def build_pipeline(
     recipe: Recipe,
     origin: str,
@@ -223,23 +269,11 @@ def build_pipeline(
     :raises PluginError: a plugin is unknown or incompatible with another.
     """
     registry = registry or PluginRegistry()
-    for module in recipe.plugin_modules:
-        registry.register_module(module)
-    context = {"data_root": data or data_root()}
-    plugins: dict[Kind, Plugin] = {}
-    for kind, spec in recipe.stage_specs().items():
-        if kind == "source" and source is not None:
-            plugins[kind] = source
-            continue
-        try:
-            info = registry.get(kind, spec.plugin)
-        except PluginError as exc:
-            raise PluginError(f"{origin}: {kind}.plugin: {exc}") from exc
-        try:
-            config = info.cls.Config.model_validate(spec.params, context=context)
-        except ValidationError as exc:
-            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
-        plugins[kind] = info.cls(config)
+    configs = validate_stage_params(recipe, origin, registry, data)
+    plugins: dict[Kind, Plugin] = {
+        kind: source if kind == "source" and source is not None else cls(config)
+        for kind, (cls, config) in configs.items()
+    }
     for kind, plugin in plugins.items():
         missing = [need for need in getattr(plugin, "requires", ()) if need not in plugins]
         if missing:

@@ -241,12 +241,23 @@ class RecordedSource(Source):
         self.truth = LoopGroundTruth(queries=message.queries, indptr=message.indptr, matches=message.matches)
         self.truth_seen = True
 
-    def _from_original_source(self) -> LoopGroundTruth | None:
-        spec = self.plan.original.source
+    def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
+        """Other tolerances (``eval.tolerances``) are not in the log: they come from the
+        original source when its plugin and data are here, else there are none."""
         try:
-            cls = PluginRegistry(modules=self.plan.original.plugin_modules).get("source", spec.plugin).cls
-            config = cls.Config.model_validate(spec.params, context={"data_root": data_root()})
-            truth = cls(config).loop_ground_truth()  # type: ignore[attr-defined]
+            return self._original_source().loop_ground_truth_at(tolerance)
+        except Exception:  # noqa: BLE001 (the evaluation then notes the tolerance as not scored)
+            return None
+
+    def _original_source(self) -> Source:
+        spec = self.plan.original.source
+        cls = PluginRegistry(modules=self.plan.original.plugin_modules).get("source", spec.plugin).cls
+        config = cls.Config.model_validate(spec.params, context={"data_root": data_root()})
+        return cls(config)  # type: ignore[return-value]
+
+    def _from_original_source(self) -> LoopGroundTruth | None:
+        try:
+            truth = self._original_source().loop_ground_truth()
         except Exception as exc:  # noqa: BLE001 (no ground truth is a valid outcome)
             self.truth_note = f"; no loop ground truth in the log, nor from its source ({exc})"
             return None

@@ -12,10 +12,24 @@ import sys
 from collections.abc import Sequence
 
 import slamfront
-from slamfront.cli import diff_cmd, inspect_cmd, plugins_cmd, recipes_cmd, recover_cmd, replay_cmd, run_cmd
+from slamfront.cli import (
+    datasets_cmd,
+    diff_cmd,
+    inspect_cmd,
+    plugins_cmd,
+    recipes_cmd,
+    recover_cmd,
+    replay_cmd,
+    retrieval_cmd,
+    run_cmd,
+    sweep_cmd,
+)
 from slamfront.errors import SlamfrontError
 
-COMMANDS = (run_cmd, replay_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd)
+COMMANDS = (
+    run_cmd, replay_cmd, sweep_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
+    datasets_cmd,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
