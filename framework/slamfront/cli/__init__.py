@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import slamfront
 from slamfront.cli import (
+    compare_cmd,
     datasets_cmd,
     diff_cmd,
     inspect_cmd,
@@ -27,7 +28,7 @@ from slamfront.cli import (
 from slamfront.errors import SlamfrontError
 
 COMMANDS = (
-    run_cmd, replay_cmd, sweep_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
+    run_cmd, replay_cmd, sweep_cmd, compare_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
     datasets_cmd,
 )
 
