@@ -194,6 +194,13 @@ def test_fast_variant_mostly_agrees_with_full_seqslam() -> None:
     assert same > 0.9
 
 
+def test_approximate_neighbours_agree_with_exact_ones() -> None:
+    references, queries = _route(200, noise=50.0, seed=8)
+    exact = {r.frame: r.match for r in _feed(SeqSlamFast(SeqSlamFast.Config(k=10)), references, queries)}
+    hnsw = {r.frame: r.match for r in _feed(SeqSlamFast(SeqSlamFast.Config(k=10, knn="hnsw")), references, queries)}
+    assert np.mean([abs(exact[f] - hnsw[f]) <= 3 for f in exact if exact[f] >= 0]) > 0.9
+
+
 def test_too_few_queries_is_a_documented_no_answer() -> None:
     references, queries = _route(60, noise=10.0, seed=6)
     results = _feed(SeqSlam(), references, queries[:8])

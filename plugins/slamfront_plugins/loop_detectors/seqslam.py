@@ -203,12 +203,14 @@ class _SequenceDetector(LoopDetector):
         )
 
     def _start_rows(self, rows: list[np.ndarray | None], n_ref: int) -> np.ndarray | None:
-        """Start rows whose trajectories pass through a row worth scoring (None: all)."""
-        if any(r is None for r in rows):
+        """Start rows of the trajectories through a kept row of the query being answered
+        (the window's middle column), at every velocity; None: all rows."""
+        middle = len(rows) // 2
+        kept = rows[middle]
+        if kept is None:
             return None
-        starts = [r[:, None] - self._offsets[:, k][None, :] for k, r in enumerate(rows)]  # type: ignore[index]
-        flat = np.unique(np.concatenate([s.ravel() for s in starts]))
-        return flat[(flat >= 0) & (flat < n_ref)]
+        starts = np.unique((kept[:, None] - self._offsets[:, middle][None, :]).ravel())
+        return starts[(starts >= 0) & (starts < n_ref)]
 
     def statistics(self) -> dict[str, int]:
         return {
@@ -243,9 +245,10 @@ class SeqSlamFast(_SequenceDetector):
     """Fast-SeqSLAM idea (Siam & Zhang 2017): only each query's k nearest references count.
 
     The difference matrix keeps, per query, its ``k`` nearest references (exact, by the
-    same mean absolute difference; or approximate, by FAISS HNSW on L2); the other
-    entries take the column's largest kept value. Contrast enhancement and the sequence
-    search run as in ``seqslam``, but only trajectories through kept entries are scored.
+    same mean absolute difference, which still compares every reference; or approximate,
+    by a FAISS HNSW index on L2, which does not); the other entries take the column's
+    largest kept value. Contrast enhancement runs as in ``seqslam``; the sequence search
+    scores only the trajectories through one of the answered query's ``k`` neighbours.
     """
 
     name = "seqslam_fast"
@@ -264,15 +267,19 @@ class SeqSlamFast(_SequenceDetector):
         self._index = None
         self._indexed = 0
 
-    def _neighbours(self, queries: np.ndarray) -> np.ndarray:
-        """(q, k) indices of each query's nearest references."""
+    def _neighbours(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, k) indices of each query's nearest references and their mean absolute differences."""
         assert self._references is not None
         references = self._references.view
         k = min(self.config.k, len(references))
         if self.config.knn == "exact":
-            distances = difference_columns(references, queries)
-            return np.argpartition(distances, k - 1, axis=0)[:k].T
-        import faiss  # optional: only the approximate mode needs it
+            distances = difference_columns(references, queries).T  # (q, R)
+            nearest = np.argpartition(distances, k - 1, axis=1)[:, :k]
+            return nearest, np.take_along_axis(distances, nearest, axis=1)
+        try:
+            import faiss  # optional: only the approximate mode needs it
+        except ImportError:
+            raise PluginError("knn: hnsw needs FAISS: pip install 'slamfront[ann]' (faiss-cpu)") from None
 
         if self._index is None:
             self._index = faiss.IndexHNSWFlat(references.shape[1], 32)
@@ -281,19 +288,18 @@ class SeqSlamFast(_SequenceDetector):
             self._index.add(np.ascontiguousarray(references[self._indexed :], dtype=np.float32))
             self._indexed = len(references)
         self._index.hnsw.efSearch = max(self.config.hnsw_ef, k)
-        _, found = self._index.search(np.ascontiguousarray(queries, dtype=np.float32), k)
-        return found
+        _, nearest = self._index.search(np.ascontiguousarray(queries, dtype=np.float32), k)
+        nearest = np.where(nearest >= 0, nearest, nearest.max(axis=1, keepdims=True))
+        # the same mean absolute difference as the exact mode, on the k neighbours only
+        gathered = references[nearest].astype(np.float32)
+        distances = np.abs(gathered - queries[:, None, :].astype(np.float32)).sum(axis=2, dtype=np.float32)
+        return nearest, distances / np.float32(references.shape[1])
 
     def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
         assert self._references is not None
-        references = self._references.view
-        neighbours = self._neighbours(queries)
-        differences = np.empty((len(references), len(queries)), dtype=np.float32)
-        rows: list[np.ndarray | None] = []
-        for j, near in enumerate(neighbours):
-            near = np.sort(near[near >= 0])
-            kept = difference_columns(references[near], queries[j : j + 1])[:, 0]
-            differences[:, j] = kept.max()
-            differences[near, j] = kept
-            rows.append(near)
+        nearest, distances = self._neighbours(queries)
+        n_ref = len(self._references)
+        differences = np.repeat(distances.max(axis=1)[None, :], n_ref, axis=0).astype(np.float32)
+        differences[nearest.T, np.arange(len(queries))[None, :]] = distances.T
+        rows: list[np.ndarray | None] = [np.unique(row) for row in nearest]
         return enhance_contrast(differences, self.config.contrast_window), rows
