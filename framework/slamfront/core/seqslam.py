@@ -171,6 +171,11 @@ def sequence_scores(columns: np.ndarray, offsets: np.ndarray, rows: np.ndarray |
             np.minimum(best, cost, out=best)
         return best
     rows = np.asarray(rows, dtype=np.int64)
+    if len(rows) * 8 > n_ref:
+        # a gather costs several times a contiguous add: sweep everything, keep the rows asked for
+        every = sequence_scores(columns, offsets)
+        best[rows] = every[rows]
+        return best
     picked = padded[rows[:, None, None] + offsets[None, :, :], np.arange(width)[None, None, :]]
     best[rows] = picked.sum(axis=2, dtype=np.float64).min(axis=1)
     return best

@@ -203,13 +203,17 @@ class _SequenceDetector(LoopDetector):
         )
 
     def _start_rows(self, rows: list[np.ndarray | None], n_ref: int) -> np.ndarray | None:
-        """Start rows of the trajectories through a kept row of the query being answered
-        (the window's middle column), at every velocity; None: all rows."""
-        middle = len(rows) // 2
-        kept = rows[middle]
-        if kept is None:
+        """Start rows whose trajectories pass through a kept entry (None: every row).
+
+        ``window`` anchors: a kept entry of any query of the window; ``middle``: of the
+        query being answered only (Fast-SeqSLAM's anchoring on the current image).
+        """
+        if any(r is None for r in rows):
             return None
-        starts = np.unique((kept[:, None] - self._offsets[:, middle][None, :]).ravel())
+        columns = [len(rows) // 2] if getattr(self.config, "anchor", "window") == "middle" else range(len(rows))
+        starts = np.unique(np.concatenate(
+            [(rows[k][:, None] - self._offsets[:, k][None, :]).ravel() for k in columns]  # type: ignore[index]
+        ))
         return starts[(starts >= 0) & (starts < n_ref)]
 
     def statistics(self) -> dict[str, int]:
@@ -248,7 +252,8 @@ class SeqSlamFast(_SequenceDetector):
     same mean absolute difference, which still compares every reference; or approximate,
     by a FAISS HNSW index on L2, which does not); the other entries take the column's
     largest kept value. Contrast enhancement runs as in ``seqslam``; the sequence search
-    scores only the trajectories through one of the answered query's ``k`` neighbours.
+    scores only the trajectories through a kept entry (of any query of the window, or,
+    with ``anchor: middle``, of the answered query only).
     """
 
     name = "seqslam_fast"
@@ -257,6 +262,11 @@ class SeqSlamFast(_SequenceDetector):
         k: int = Field(20, ge=1, description="nearest references kept per query")
         knn: Literal["exact", "hnsw"] = Field(
             "exact", description="exact L1 neighbours, or approximate ones from a FAISS HNSW index (L2)"
+        )
+        anchor: Literal["window", "middle"] = Field(
+            "window",
+            description="score trajectories through a neighbour of any query of the window, or of the "
+            "answered query only (Fast-SeqSLAM's anchoring; fastest, misses more)",
         )
         hnsw_ef: int = Field(64, ge=8, description="HNSW search breadth (knn: hnsw)")
 
