@@ -38,6 +38,9 @@ class LocalFeaturesDescriptor(Descriptor):
         grid: tuple[int, int] | None = Field(
             None, description="(rows, cols) bucketing: strongest features per cell, spread over the image"
         )
+        scale: float = Field(
+            1.0, gt=0, le=8, description="resize the image by this factor before detection (e.g. 4 for 64x32 thumbnails)"
+        )
 
         @field_validator("descriptor", mode="before")
         @classmethod
@@ -55,7 +58,7 @@ class LocalFeaturesDescriptor(Descriptor):
     @cached_property
     def extractor(self) -> LocalFeatureExtractor:
         c = self.config
-        return LocalFeatureExtractor(c.descriptor, c.detector, c.max_features, c.grid)
+        return LocalFeatureExtractor(c.descriptor, c.detector, c.max_features, c.grid, c.scale)
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         found = self.extractor.extract(inputs.frame.gray())

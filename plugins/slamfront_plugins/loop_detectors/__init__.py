@@ -2,9 +2,10 @@
 
 from slamfront import hookimpl
 
+from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 
 
 @hookimpl
 def slamfront_loop_detectors() -> list[type]:
-    return [NearestNeighbour]
+    return [NearestNeighbour, BowBayes]
