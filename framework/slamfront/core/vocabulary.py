@@ -40,7 +40,7 @@ from typing import Literal
 
 import numpy as np
 
-from slamfront.core.distances import nearest_two, pairwise
+from slamfront.core.distances import nearest_two, pairwise, single_threaded_blas
 from slamfront.core.errors import CoreError
 
 UpdateRule = Literal["greedy", "nndr"]
@@ -173,6 +173,10 @@ class OnlineVocabulary:
         :meth:`retain` (the image became a place) or drops them with :meth:`truncate`.
         """
         self.check(descriptors)
+        with single_threaded_blas():
+            return self._update(descriptors, rule, thresholds)
+
+    def _update(self, descriptors: np.ndarray, rule: UpdateRule, thresholds: VocabularyThresholds) -> Quantisation:
         n = len(descriptors)
         nd0, nnd0, word0 = self.nearest(descriptors)
         order = np.argsort(-nd0, kind="stable") if rule == "greedy" else np.arange(n)

@@ -24,12 +24,24 @@ from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
 
 @dataclass
 class _Place:
-    """What the detector keeps of a place: the frame that made it and its words."""
+    """What the detector keeps of a place: the frames it covers and its words."""
 
-    frame: int
+    first_frame: int
     bag: Counter[int]
     words: np.ndarray
     other_words: np.ndarray | None
+    last_frame: int = -1
+    """The last frame merged into it (T_sim); -1: none."""
+
+    @property
+    def frame(self) -> int:
+        """The frame a loop to this place reports: the middle of the frames it covers.
+
+        The seed keeps the first image of a run of similar ones and drops the rest, so a
+        place stands for all of them; the middle one is never more than half the run
+        away from the frame the robot actually revisits.
+        """
+        return self.first_frame if self.last_frame < 0 else (self.first_frame + self.last_frame) // 2
 
 
 @dataclass
@@ -256,9 +268,11 @@ class BowBayes(LoopDetector):
             vocabularies.main.truncate(n_before)
             if vocabularies.other is not None:
                 vocabularies.other.truncate(n_other)
+            bag = self._unkept_words_private(bag, n_before)
             if merged:
                 place = int(self._last_place)  # type: ignore[arg-type]
                 self._memory.merge(place)
+                self._places[place].last_frame = frame.index
                 self._counts["merged"] += 1
         if not similar:
             self._previous_bag[frame.traversal] = bag
@@ -321,6 +335,17 @@ class BowBayes(LoopDetector):
             frame=frame, match=last.match, confidence=last.confidence, accepted=last.accepted,
             candidates=last.candidates, reason=f"{note}: repeats frame {last.frame}'s answer",
         )
+
+    def _unkept_words_private(self, bag: Counter[int], n_kept: int) -> Counter[int]:
+        """The words an unkept frame added are forgotten and their ids reused: in its bag
+        they become ids of their own (negative), counted in its size, shared with nothing."""
+        private = Counter[int]()
+        for word, count in bag.items():
+            if word >= n_kept:
+                self._counts["private_words"] += 1
+                word = -self._counts["private_words"]
+            private[word] = count
+        return private
 
     def _into_working(self, places: list[int], retrieved: bool = False) -> list[int]:
         """Index places that entered WM; places back from LTM take their words back too."""

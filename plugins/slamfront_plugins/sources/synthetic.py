@@ -128,13 +128,15 @@ class SyntheticWorld(Source):
         if c.mode == "paired":
             queries = np.arange(n, 2 * n)
             return LoopGroundTruth.band(queries, queries - n, c.tolerance, valid=(0, n - 1))
-        # stream: a frame revisits every earlier-lap frame within the radius along the route
+        # stream: a frame revisits every earlier frame within the radius along the (closed)
+        # route that it reached by driving at least half the route since: the frames of
+        # earlier laps, and the start of its own lap when the lap closes
         reach = int(np.floor(c.revisit_radius_m / self.step_m))
         queries = np.arange(n * c.laps)
         rows = []
         for frame in queries:
             lap, k = divmod(int(frame), n)
             near = (k + np.arange(-reach, reach + 1)) % n
-            rows.append(np.sort(np.concatenate([earlier * n + near for earlier in range(lap)]))
-                        if lap else np.empty(0, dtype=np.int64))
+            earlier = np.concatenate([passed * n + near for passed in range(lap + 1)])
+            rows.append(np.unique(earlier[frame - earlier >= n / 2]))
         return LoopGroundTruth.from_rows(queries, rows)
