@@ -189,3 +189,22 @@ def test_paired_traversals_search_queries_against_the_reference() -> None:
     matches = np.array([a.match for a in answers])
     assert np.mean(np.abs(matches - np.arange(30)) <= 3) >= 0.9  # zeta = 3, as the paired harness scores
     assert sum(a.accepted for a in answers) >= 15
+
+
+def test_paired_harness_through_the_runtime(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Reference day, query dusk: answers for queries only, scored against the paired ground truth."""
+    from slamfront.recipe import build_pipeline, parse_recipe
+    from slamfront.runtime import run_pipeline
+
+    from tests.helpers import small_synthetic_recipe
+
+    raw = small_synthetic_recipe(mode="paired", frames_per_traversal=30, image_width=160, image_height=120)
+    raw["descriptor"] = {"plugin": "local_features", "params": {"descriptor": "sift", "max_features": 200}}
+    raw["loop_detector"] = {"plugin": "bow_bayes", "params": {"compare_rules": True}}
+    recipe = parse_recipe(raw, "paired")
+    result = run_pipeline(build_pipeline(recipe, "paired"), "paired", tmp_path, progress=False)
+    metrics = result.metrics
+    assert metrics["n_queries"] == 30 and metrics["n_not_reported"] == 0
+    assert metrics["n_places_query"] == 30 and 0 < metrics["n_places_reference"] <= 30
+    assert metrics["bow_wm_size_final"] == metrics["n_places_reference"]  # every reference place searched
+    assert metrics["recall_at_5"] >= 0.5
