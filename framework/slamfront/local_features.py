@@ -16,10 +16,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Literal
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
+from pydantic import BeforeValidator
 
 DescriptorType = Literal["sift", "rootsift", "orb", "brisk", "akaze", "kaze", "brief", "freak"]
 DetectorType = Literal["native", "fast", "agast", "gftt", "orb", "sift", "brisk"]
@@ -28,6 +29,16 @@ SURF_UNAVAILABLE = (
     "SURF is patented and not in OpenCV's wheels (built without OPENCV_ENABLE_NONFREE); "
     "use sift, rootsift or kaze for float descriptors, orb, brisk or akaze for binary ones"
 )
+
+
+def _refuse_surf(value: object) -> object:
+    if isinstance(value, str) and value.lower() == "surf":
+        raise ValueError(SURF_UNAVAILABLE)
+    return value
+
+
+DescriptorName = Annotated[DescriptorType, BeforeValidator(_refuse_surf)]
+"""A descriptor type in a plugin config; asking for SURF gets the reason it is missing."""
 
 
 @dataclass(frozen=True)

@@ -5,15 +5,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from functools import cached_property
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 from slamfront import Descriptor, PluginConfig, StageInputs
-from slamfront.local_features import (
-    DESCRIPTORS,
-    SURF_UNAVAILABLE,
-    DescriptorType,
-    DetectorType,
-    LocalFeatureExtractor,
-)
+from slamfront.local_features import DESCRIPTORS, DescriptorName, DetectorType, LocalFeatureExtractor
 from slamfront.messages import Features
 
 
@@ -30,7 +24,7 @@ class LocalFeaturesDescriptor(Descriptor):
     produces_local = True
 
     class Config(PluginConfig):
-        descriptor: DescriptorType = Field("orb", description="descriptor type")
+        descriptor: DescriptorName = Field("orb", description="descriptor type (SURF is not available: see the docs)")
         detector: DetectorType = Field(
             "native", description="keypoint detector: the descriptor's own, or fast/agast/gftt/orb/sift/brisk"
         )
@@ -41,13 +35,6 @@ class LocalFeaturesDescriptor(Descriptor):
         scale: float = Field(
             1.0, gt=0, le=8, description="resize the image by this factor before detection (e.g. 4 for 64x32 thumbnails)"
         )
-
-        @field_validator("descriptor", mode="before")
-        @classmethod
-        def _no_surf(cls, value: object) -> object:
-            if isinstance(value, str) and value.lower() == "surf":
-                raise ValueError(SURF_UNAVAILABLE)
-            return value
 
         @model_validator(mode="after")
         def _detector_for_describe_only(self) -> LocalFeaturesDescriptor.Config:

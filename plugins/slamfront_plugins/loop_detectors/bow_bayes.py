@@ -9,14 +9,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
 from slamfront.core.memory import MemoryManager, MemoryParameters
 from slamfront.core.vocabulary import OnlineVocabulary, Quantisation, UpdateRule, VocabularyThresholds
-from slamfront.local_features import DESCRIPTORS, SURF_UNAVAILABLE, DescriptorType
+from slamfront.local_features import DESCRIPTORS, DescriptorName
 from slamfront.messages import BowStatistics, Features, LoopResult, Message
 
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
@@ -81,7 +81,7 @@ class BowBayes(LoopDetector):
         compare_rules: bool = Field(
             False, description="also build the other rule's vocabulary from the same frames (report figs 4 and 6)"
         )
-        descriptor_type: DescriptorType | None = Field(
+        descriptor_type: DescriptorName | None = Field(
             None, description="descriptor the vocabulary is built for (default: the local_features stage's)"
         )
         nndr_ratio: float = Field(0.8, gt=0, le=1, description="T_NNDR: new word when ND/NND is above this")
@@ -108,13 +108,6 @@ class BowBayes(LoopDetector):
         max_retrieved: int = Field(2, ge=0, description="places brought back from LTM per frame")
         retrieval_radius: int = Field(3, ge=0, description="neighbours of the best hypothesis retrieved / kept")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
-
-        @field_validator("descriptor_type", mode="before")
-        @classmethod
-        def _no_surf(cls, value: object) -> object:
-            if isinstance(value, str) and value.lower() == "surf":
-                raise ValueError(SURF_UNAVAILABLE)
-            return value
 
         @model_validator(mode="after")
         def _ordered_thresholds(self) -> BowBayes.Config:
