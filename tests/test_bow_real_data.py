@@ -66,6 +66,7 @@ def test_nordland_stream_source(shared_data: Path) -> None:
     assert len(frames) == len(source) == 40
     assert frames[0].name == "summer/images-01010.png" and frames[20].name == "winter/images-01010.png"
     assert frames[0].image.shape == (32, 64, 3) and {f.traversal for f in frames} == {"stream"}
+    assert [f.sequence_index for f in frames] == list(range(40))
     truth = source.loop_ground_truth()
     rows = {int(q): truth.matches[truth.indptr[k] : truth.indptr[k + 1]].tolist() for k, q in enumerate(truth.queries)}
     assert all(rows[f] == [] for f in range(20))  # the first season revisits nothing

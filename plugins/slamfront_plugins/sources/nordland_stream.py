@@ -73,9 +73,10 @@ class NordlandStream(Source):
             season = self.config.first if lap == 0 else self.config.second
             for k, path in enumerate(files):
                 index = lap * n + k
+                # one traversal: positions count through both seasons (the name tells the season)
                 yield Frame(
                     index=index, timestamp=index / self.config.fps, image=read_image(path), traversal="stream",
-                    sequence_index=k, name=f"{season}/{path.name}",
+                    sequence_index=index, name=f"{season}/{path.name}",
                 )
 
     def loop_ground_truth(self) -> LoopGroundTruth:
