@@ -5,7 +5,7 @@ the other: the whole recipe (reading 7,152 frames, describing, matching, evaluat
 logging), then the detector alone is characterised by its searches. Ratios are against
 the hierarchical detector measured in the same run.
 
-Run: .venv/bin/python benchmarks/bench_nordland_methods.py [RECIPE ...]
+Run: .venv/bin/python benchmarks/bench_nordland_methods.py [RECIPE[@key=value,...] ...]
 """
 
 from __future__ import annotations
@@ -21,14 +21,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import publish, table  # noqa: E402
 
-DEFAULT = ["nordland_hsl", "nordland_seqslam", "nordland_seqslam_fast", "nordland_openseqslam"]
+DEFAULT = [
+    "nordland_hsl",
+    "nordland_seqslam",
+    "nordland_seqslam_fast",
+    "nordland_seqslam_fast@loop_detector.params.knn=hnsw",
+    "nordland_seqslam_fast@loop_detector.params.anchor=middle",
+    "nordland_openseqslam",
+]
+"""Recipes, each optionally with ``@key=value,key=value`` overrides."""
 
 CHILD = """
 import json, resource, sys
 from pathlib import Path
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import run_pipeline
-recipe, path = load_recipe(sys.argv[1])
+name, _, overrides = sys.argv[1].partition("@")
+recipe, path = load_recipe(name, [o for o in overrides.split(",") if o])
 result = run_pipeline(build_pipeline(recipe, str(path)), str(path), Path(sys.argv[2]), progress=False)
 m = result.metrics
 print(json.dumps({k: m.get(k) for k in ("seconds", "frames_per_second", "n_searches", "recall_at_100p", "auc_pr",

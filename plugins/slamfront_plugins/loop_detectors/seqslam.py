@@ -211,10 +211,11 @@ class _SequenceDetector(LoopDetector):
         if any(r is None for r in rows):
             return None
         columns = [len(rows) // 2] if getattr(self.config, "anchor", "window") == "middle" else range(len(rows))
-        starts = np.unique(np.concatenate(
-            [(rows[k][:, None] - self._offsets[:, k][None, :]).ravel() for k in columns]  # type: ignore[index]
-        ))
-        return starts[(starts >= 0) & (starts < n_ref)]
+        wanted = np.zeros(n_ref, dtype=bool)
+        for k in columns:
+            starts = (rows[k][:, None] - self._offsets[:, k][None, :]).ravel()  # type: ignore[index]
+            wanted[starts[(starts >= 0) & (starts < n_ref)]] = True
+        return np.flatnonzero(wanted)
 
     def statistics(self) -> dict[str, int]:
         return {
