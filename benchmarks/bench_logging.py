@@ -70,9 +70,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         results: dict[str, RunResult] = {}
+        wall: dict[str, float] = {}
         for key in chosen:
             label, overrides = VARIANTS[key]
+            start = time.perf_counter()
             result = run_variant(args.recipe, [*args.overrides, *overrides], args.max_frames, root / key)
+            wall[key] = time.perf_counter() - start
             results[key] = result
             m = result.metrics
             rows.append([
@@ -83,9 +86,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         log = default.log_path
         replay_seconds = timed(lambda: replay_log(log, root / "replay", progress=False))
         replayed = root / "replay" / "run.mcap"
+        # both end to end (set-up, every stage, evaluation, report): metrics["seconds"] covers the
+        # frame loop only, which would flatter the run against a replay that also evaluates
+        baseline = wall["default"]
         tools = [
-            ["original run", default.metrics["seconds"], 1.0],
-            ["replay with the embedded recipe", replay_seconds, replay_seconds / default.metrics["seconds"]],
+            ["original run (end to end, with evaluation and report)", baseline, 1.0],
+            ["replay with the embedded recipe (end to end)", replay_seconds, replay_seconds / baseline],
         ]
         for name, work in (
             ("inspect", lambda: summarize(log)),
@@ -94,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             ("recover (rewrite the whole log)", lambda: recover_log(log, root / "recovered.mcap")),
         ):
             seconds = timed(work)
-            tools.append([name, seconds, seconds / default.metrics["seconds"]])
+            tools.append([name, seconds, seconds / baseline])
         n_frames = default.metrics["n_frames"]
         size_mb = log.stat().st_size / 1e6
     body = "\n\n".join([
@@ -110,6 +116,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "ratio are measured in the same run), not run times across rows. KiB/frame does not depend on load.",
         f"## Replay and the log tools (default log, {size_mb:.2f} MB)",
         table(["operation", "seconds", "vs the original run"], tools),
+        "A replay re-runs every stage from the first one whose inputs the log does not keep exactly "
+        "(`slamfront replay --help`): where the log keeps exact pixels (PNG at full width, as the Nordland recipes log them) "
+        "that is the descriptor, so the replay costs about what the run did.",
     ])
     name = "logging" if args.recipe == "demo" else f"logging_{Path(args.recipe).stem}"
     publish(name, f"Logging benchmark ({args.recipe})", body)
