@@ -30,7 +30,7 @@ from slamfront.replay import replay_log  # noqa: E402
 from slamfront.runtime import RunResult, run_pipeline  # noqa: E402
 
 VARIANTS: dict[str, tuple[str, list[str]]] = {
-    "default": ("default: JPEG 320 px, zstd, 1 MiB chunks, fsync every 5 s", []),
+    "default": ("the recipe's log settings (slamfront default: JPEG 320 px, zstd, 1 MiB chunks, fsync every 5 s)", []),
     "no-images": ("no images, no scene", ["log.images=false", "log.scene=false"]),
     "png": ("PNG at full width (replayable from the descriptor)", ["log.image_format=png", "log.image_max_width=100000"]),
     "lz4": ("lz4 chunks", ["log.compression=lz4"]),
