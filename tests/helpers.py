@@ -8,6 +8,7 @@ from typing import Any
 
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
+from slamfront.mcaplog.diff import comparable_bytes
 from slamfront.mcaplog.reader import read_messages
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.writer import RunLogWriter
@@ -56,9 +57,10 @@ def rewrite_log(
 
 
 def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:
-    """Every message's bytes on the topics starting with ``prefix``, by topic."""
+    """Every message's bytes on the topics starting with ``prefix``, by topic, as
+    ``slamfront diff`` compares them (wall-time fields left out)."""
     topics: dict[str, list[bytes]] = {}
     for message in read_messages(path):
         if message.topic.startswith(prefix):
-            topics.setdefault(message.topic, []).append(message.data)
+            topics.setdefault(message.topic, []).append(comparable_bytes(message))
     return topics

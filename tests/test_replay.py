@@ -50,6 +50,12 @@ REPLAYED_PIPELINES: dict[str, dict[str, Any]] = {
         "descriptor": {"plugin": "seqslam_thumbnail"},
         "loop_detector": {"plugin": "seqslam_fast", "params": {"ds": 6, "mode": "online", "score_offset": "bound"}},
     },
+    # no time budget: transfers to long-term memory would then depend on the machine's speed
+    "bow_bayes_stream": {
+        "source_params": {"mode": "stream", "laps": 2, "frames_per_traversal": 30, "image_width": 160, "image_height": 120},
+        "descriptor": {"plugin": "local_features", "params": {"descriptor": "orb", "max_features": 200}},
+        "loop_detector": {"plugin": "bow_bayes", "params": {"time_budget_s": 0}},
+    },
 }
 
 

@@ -46,6 +46,9 @@ class Message:
     """
 
     schema_name: ClassVar[str] = "slamfront.Message"
+    volatile_fields: ClassVar[tuple[str, ...]] = ()
+    """Fields that measure the machine (wall times), not the method: ``slamfront diff``
+    leaves them out unless ``--strict``, so a replay or a rerun still compares equal."""
 
     def to_json(self) -> bytes:
         """Encode as compact UTF-8 JSON (see the module docstring for arrays and floats)."""
@@ -436,6 +439,7 @@ class BowStatistics(Message):
     """
 
     schema_name: ClassVar[str] = "slamfront.BowStatistics"
+    volatile_fields: ClassVar[tuple[str, ...]] = ("processing_seconds",)
     frame: int
     n_features: int
     new_words: int

@@ -8,7 +8,8 @@ first differing message is decoded and the first differing field named
 What measures the machine rather than the method is left out by default, so two runs of
 one recipe compare equal: the ``/log`` topic (human-readable lines with durations) and,
 in ``RunMetrics`` and ``StageStatistics`` messages, the keys that are timings or memory
-(:data:`VOLATILE_KEY`). ``strict`` compares everything.
+(:data:`VOLATILE_KEY`), and in other messages the fields their class declares
+``volatile_fields`` (per-frame wall times). ``strict`` compares everything.
 """
 
 from __future__ import annotations
@@ -25,11 +26,12 @@ from typing import Any
 import numpy as np
 from google.protobuf.json_format import MessageToDict
 
+from slamfront.errors import LogError
 from slamfront.mcaplog.reader import LoggedMessage, read_messages
-from slamfront.messages import RunMetrics, StageStatistics, decode_any
+from slamfront.messages import RunMetrics, StageStatistics, decode_any, message_class
 
 DEFAULT_IGNORED_TOPICS = ("/log",)
-VOLATILE_KEY = re.compile(r"^(timing|frames_per_second)$|^log_|seconds|_ms$|_s$|per_second|rss|memory")
+VOLATILE_KEY = re.compile(r"^(timing|frames_per_second)$|^log_|seconds|_ms(_|$)|_s$|per_second|rss|memory")
 """Keys of run metrics and stage statistics that are wall times, rates or memory."""
 _VOLATILE_SCHEMAS = (RunMetrics.schema_name, StageStatistics.schema_name)
 
@@ -74,11 +76,30 @@ class _Entry:
     schema: str
 
 
-def _normalised(message: LoggedMessage, strict: bool) -> bytes:
-    if strict or message.schema_name not in _VOLATILE_SCHEMAS:
+def _volatile_fields(schema_name: str) -> tuple[str, ...]:
+    try:
+        return message_class(schema_name).volatile_fields
+    except LogError:  # a Foxglove schema, or a message type whose plugin is not installed
+        return ()
+
+
+def _without_volatile(decoded: dict[str, Any], schema_name: str) -> dict[str, Any]:
+    """The decoded JSON message without what measures the machine."""
+    if schema_name in _VOLATILE_SCHEMAS:
+        decoded["values"] = {k: v for k, v in decoded.get("values", {}).items() if not VOLATILE_KEY.search(k)}
+    for name in _volatile_fields(schema_name):
+        decoded.pop(name, None)
+    return decoded
+
+
+def comparable_bytes(message: LoggedMessage, strict: bool = False) -> bytes:
+    """The bytes ``diff`` compares: the message's own, or, unless ``strict``, its JSON
+    without the keys and fields that measure the machine."""
+    if strict or message.message_encoding != "json":
         return message.data
-    values = {k: v for k, v in json.loads(message.data).get("values", {}).items() if not VOLATILE_KEY.search(k)}
-    return json.dumps(values, sort_keys=True).encode()
+    if message.schema_name not in _VOLATILE_SCHEMAS and not _volatile_fields(message.schema_name):
+        return message.data
+    return json.dumps(_without_volatile(json.loads(message.data), message.schema_name), sort_keys=True).encode()
 
 
 def _index(path: Path, ignored: Sequence[str], strict: bool) -> dict[str, list[_Entry]]:
@@ -86,7 +107,7 @@ def _index(path: Path, ignored: Sequence[str], strict: bool) -> dict[str, list[_
     for message in read_messages(path, strict=False):
         if _is_ignored(message.topic, ignored):
             continue
-        digest = hashlib.blake2b(_normalised(message, strict), digest_size=16).digest()
+        digest = hashlib.blake2b(comparable_bytes(message, strict), digest_size=16).digest()
         topics.setdefault(message.topic, []).append(_Entry(message.log_time_ns, digest, message.schema_name))
     return topics
 
@@ -165,9 +186,7 @@ def _comparable(message: LoggedMessage, strict: bool) -> Any:
     """A message as nested dicts, lists and arrays."""
     if message.message_encoding == "json":
         decoded = decode_any(message.data)
-        if not strict and message.schema_name in _VOLATILE_SCHEMAS:
-            decoded["values"] = {k: v for k, v in decoded.get("values", {}).items() if not VOLATILE_KEY.search(k)}
-        return decoded
+        return decoded if strict else _without_volatile(decoded, message.schema_name)
     try:
         return MessageToDict(message.decoded, preserving_proto_field_name=True)
     except Exception:  # noqa: BLE001 (undecodable: compare the raw bytes)
