@@ -40,10 +40,16 @@ def single_threaded_blas() -> AbstractContextManager[Any]:
     return _threadpools().limit(limits=1, user_api="blas")
 
 
-def pairwise(a: np.ndarray, b: np.ndarray, metric: Metric, chunk: int = 1024) -> np.ndarray:
+def pairwise(
+    a: np.ndarray, b: np.ndarray, metric: Metric, chunk: int = 1024, max_elements: int = 1 << 22
+) -> np.ndarray:
     """(N, M) float32 distances between the rows of ``a`` (N, D) and ``b`` (M, D).
 
-    Works in row chunks of ``a`` so memory stays at ``chunk * M * D`` for L1 and Hamming.
+    L1 and Hamming work in row chunks of ``a``: at most ``chunk`` rows and at most
+    ``max_elements`` temporary elements (``rows * M * D``). The element bound is what keeps
+    it fast as well as small: 1,024 rows against 3,576 x 288 references made a 4 GB
+    temporary and took 20 s, 4 rows at a time 1 s, with identical results (each distance
+    is summed over its own row whatever the chunking).
     """
     a = np.atleast_2d(a)
     b = np.atleast_2d(b)
@@ -60,6 +66,7 @@ def pairwise(a: np.ndarray, b: np.ndarray, metric: Metric, chunk: int = 1024) ->
         nb = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
         return (1.0 - na.astype(np.float64) @ nb.astype(np.float64).T).astype(np.float32)
     out = np.empty((len(a), len(b)), dtype=np.float32)
+    chunk = max(1, min(chunk, max_elements // max(b.size, 1)))
     for start in range(0, len(a), chunk):
         block = a[start : start + chunk]
         if metric == "l1":
