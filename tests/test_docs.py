@@ -9,6 +9,7 @@ from pathlib import Path
 
 import slamfront.hookspecs as hookspecs
 from slamfront.data import checkout_root
+from slamfront.registry import PluginRegistry
 
 DOCS = checkout_root() / "docs"
 
@@ -51,3 +52,11 @@ def test_first_plugin_guide_works_as_written(tmp_path: Path, cli, monkeypatch) -
     assert (tmp_path / "logs/my_first_plugin/report.md").read_text().count("cosine_match") >= 1
     code, out, _ = cli("plugins", "-p", "my_plugins", "--kind", "loop_detector")
     assert "cosine_match" in out and os.path.exists("logs/my_first_plugin/pr.png")
+
+
+def test_the_hook_reference_names_every_built_in_plugin() -> None:
+    reference = (DOCS / "hooks.md").read_text()
+    built_ins = [info for info in PluginRegistry().all() if info.distribution == "slamfront"]
+    assert built_ins
+    missing = [f"{info.kind} {info.name}" for info in built_ins if f"`{info.name}`" not in reference]
+    assert not missing, f"docs/hooks.md does not list these built-ins: {missing}"
