@@ -9,6 +9,7 @@ from __future__ import annotations
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.evaluation.frames import FrameOverview
 from slamfront.evaluation.loops import LoopClosureEvaluation
+from slamfront.evaluation.registration import RegistrationEvaluation
 from slamfront.plugin import Kind
 
 
@@ -17,6 +18,8 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
     chosen: list[Evaluation] = [FrameOverview()]
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
+    if "registration" in kinds:
+        chosen.append(RegistrationEvaluation())
     return chosen
 
 

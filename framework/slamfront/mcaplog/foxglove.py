@@ -13,6 +13,8 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
@@ -108,6 +110,45 @@ def frame_transforms(matrix: np.ndarray, stamp_ns: int, parent: str = MAP_FRAME,
     transform.rotation.x, transform.rotation.y = float(qx), float(qy)
     transform.rotation.z, transform.rotation.w = float(qz), float(qw)
     return FrameTransforms(transforms=[transform])
+
+
+_CLOUD_FIELDS = (
+    ("x", 0, PackedElementField.FLOAT32),
+    ("y", 4, PackedElementField.FLOAT32),
+    ("z", 8, PackedElementField.FLOAT32),
+    ("red", 12, PackedElementField.UINT8),
+    ("green", 13, PackedElementField.UINT8),
+    ("blue", 14, PackedElementField.UINT8),
+    ("alpha", 15, PackedElementField.UINT8),
+)
+_CLOUD_DTYPE = np.dtype({"names": [f[0] for f in _CLOUD_FIELDS], "offsets": [f[1] for f in _CLOUD_FIELDS],
+                         "formats": ["<f4"] * 3 + ["u1"] * 4, "itemsize": 16})
+
+
+def point_cloud(
+    points: np.ndarray, colors: np.ndarray | None, stamp_ns: int, frame_id: str = MAP_FRAME
+) -> PointCloud:
+    """(N, 3) points with optional (N, 3) uint8 RGB colours as a ``PointCloud``.
+
+    Each point is 16 bytes: x, y, z float32 then red, green, blue, alpha uint8, which
+    Foxglove's 3-D panel colours by directly ("RGBA (separate fields)"). Points without
+    colours are drawn grey.
+    """
+    points = np.asarray(points)
+    packed = np.zeros(len(points), dtype=_CLOUD_DTYPE)
+    for axis, name in enumerate("xyz"):
+        packed[name] = points[:, axis]
+    rgb = np.full((len(points), 3), 180, dtype=np.uint8) if colors is None else np.asarray(colors, dtype=np.uint8)
+    for channel, name in enumerate(("red", "green", "blue")):
+        packed[name] = rgb[:, channel]
+    packed["alpha"] = 255
+    message = PointCloud(
+        timestamp=timestamp(stamp_ns), frame_id=frame_id, point_stride=_CLOUD_DTYPE.itemsize,
+        fields=[PackedElementField(name=name, offset=offset, type=kind) for name, offset, kind in _CLOUD_FIELDS],
+        data=packed.tobytes(),
+    )
+    message.pose.orientation.w = 1.0
+    return message
 
 
 _LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
