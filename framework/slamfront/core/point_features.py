@@ -66,33 +66,43 @@ def pair_features(
     :returns: ``theta, alpha, phi, distance`` (PCL's f1, f2, f3, f4), each ``(...)``;
         all zero for degenerate pairs.
     """
+    axis_first = [np.moveaxis(np.asarray(a, dtype=np.float64), -1, 0) for a in (p1, n1, p2, n2)]
+    return _pair_features(*axis_first)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def _pair_features(
+    p1: np.ndarray, n1: np.ndarray, p2: np.ndarray, n2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`pair_features` on coordinate-first arrays ``(3, ...)`` (contiguous per axis: faster)."""
     delta = p2 - p1
-    distance = np.linalg.norm(delta, axis=-1)
+    distance = np.sqrt(_dot(delta, delta))
     safe = np.where(distance > 0, distance, 1.0)
-    angle1 = np.einsum("...i,...i->...", n1, delta) / safe
-    angle2 = np.einsum("...i,...i->...", n2, delta) / safe
-    # the source is the end whose normal is closer to the joining line
-    swap = np.arccos(np.clip(np.abs(angle1), 0.0, 1.0)) > np.arccos(np.clip(np.abs(angle2), 0.0, 1.0))
-    source_normal = np.where(swap[..., None], n2, n1)
-    target_normal = np.where(swap[..., None], n1, n2)
-    line = np.where(swap[..., None], -delta, delta)
+    angle1 = _dot(n1, delta) / safe
+    angle2 = _dot(n2, delta) / safe
+    # the source is the end whose normal is closer to the joining line (PCL compares acos)
+    swap = np.arccos(np.minimum(np.abs(angle1), 1.0)) > np.arccos(np.minimum(np.abs(angle2), 1.0))
+    source_normal = np.where(swap, n2, n1)
+    target_normal = np.where(swap, n1, n2)
+    line = np.where(swap, -delta, delta)
     phi = np.where(swap, -angle2, angle1)
-    v = np.cross(line, source_normal)
-    v_norm = np.linalg.norm(v, axis=-1)
-    v = v / np.where(v_norm > 0, v_norm, 1.0)[..., None]
-    w = np.cross(source_normal, v)
-    alpha = np.einsum("...i,...i->...", v, target_normal)
-    theta = np.arctan2(
-        np.einsum("...i,...i->...", w, target_normal), np.einsum("...i,...i->...", source_normal, target_normal)
-    )
+    v = _cross(line, source_normal)
+    v_norm = np.sqrt(_dot(v, v))
+    v /= np.where(v_norm > 0, v_norm, 1.0)
+    w = _cross(source_normal, v)
+    alpha = _dot(v, target_normal)
+    theta = np.arctan2(_dot(w, target_normal), _dot(source_normal, target_normal))
     degenerate = (distance == 0) | (v_norm == 0)
-    zero = np.zeros_like(distance)
-    return (
-        np.where(degenerate, zero, theta),
-        np.where(degenerate, zero, alpha),
-        np.where(degenerate, zero, phi),
-        np.where(degenerate, zero, distance),
-    )
+    if degenerate.any():
+        theta[degenerate] = alpha[degenerate] = phi[degenerate] = distance[degenerate] = 0.0
+    return theta, alpha, phi, distance
 
 
 def pfh_bin(theta: np.ndarray, alpha: np.ndarray, phi: np.ndarray, splits: int = PFH_SPLITS) -> np.ndarray:
@@ -127,6 +137,7 @@ def pfh(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> np.n
         return histograms
     # PCL's loop order: for i_idx, for j_idx < i_idx: features(p[i_idx], p[j_idx])
     later, earlier = np.triu_indices(k, 1)[::-1]
+    points_t, normals_t = np.ascontiguousarray(points.T), np.ascontiguousarray(normals.T)
     counts = np.sum(neighbours >= 0, axis=1)
     pair_counts = counts * (counts - 1) // 2
     increment = np.divide(100.0, pair_counts, out=np.zeros(n), where=pair_counts > 0)
@@ -138,7 +149,7 @@ def pfh(points: np.ndarray, normals: np.ndarray, neighbours: np.ndarray) -> np.n
         valid = (first >= 0) & (second >= 0)
         owner = np.broadcast_to(rows[:, None], valid.shape)[valid]
         i, j = first[valid], second[valid]
-        theta, alpha, phi, _ = pair_features(points[i], normals[i], points[j], normals[j])
+        theta, alpha, phi, _ = _pair_features(points_t[:, i], normals_t[:, i], points_t[:, j], normals_t[:, j])
         flat = (owner - start) * PFH_BINS + pfh_bin(theta, alpha, phi)
         votes = np.bincount(flat, minlength=len(rows) * PFH_BINS).reshape(len(rows), PFH_BINS)
         histograms[rows] = votes * increment[rows, None]

@@ -114,6 +114,24 @@ def prepare_cloud(frame: Frame, config: FeatureIcpConfig, timer: StepTimer) -> P
     if colors.ndim == 1:  # a grey image
         colors = np.repeat(colors[:, None], 3, axis=1)
     cloud.colors = o3d.utility.Vector3dVector(colors.astype(np.float64) / 255.0)
+    try:
+        return prepare_points(frame.index, cloud, config, timer)
+    except UnusableFrame as exc:
+        raise UnusableFrame(f"{describe(frame)}: {exc} from {len(points)} pixels with depth") from None
+
+
+def prepare_points(
+    frame: int,
+    cloud: o3d.geometry.PointCloud,
+    config: FeatureIcpConfig,
+    timer: StepTimer,
+    viewpoint: np.ndarray | None = None,
+) -> PreparedCloud:
+    """Filter, downsample, orient normals to ``viewpoint`` (default: the origin, the
+    camera centre) and describe a cloud.
+
+    :raises UnusableFrame: too few points are left after filtering.
+    """
     if config.outlier_neighbours > 0:
         cloud = timer.run(
             "outliers", lambda: cloud.remove_statistical_outlier(config.outlier_neighbours, config.outlier_std_ratio)[0]
@@ -121,26 +139,27 @@ def prepare_cloud(frame: Frame, config: FeatureIcpConfig, timer: StepTimer) -> P
     down = timer.run("downsample", lambda: cloud.voxel_down_sample(config.voxel_size_m))
     if len(down.points) < config.min_points:
         raise UnusableFrame(
-            f"{describe(frame)}: too few points after filtering: {len(down.points)} at voxel "
-            f"{config.voxel_size_m:g} m (min_points {config.min_points}) from {len(points)} with depth"
+            f"too few points after filtering: {len(down.points)} at voxel {config.voxel_size_m:g} m "
+            f"(min_points {config.min_points})"
         )
-    timer.run("normals", lambda: _estimate_normals(down, config))
+    timer.run("normals", lambda: _estimate_normals(down, config, np.zeros(3) if viewpoint is None else viewpoint))
     features = timer.run("features", lambda: compute_features(down, config))
     model = down if config.model_voxel_m == config.voxel_size_m else cloud.voxel_down_sample(config.model_voxel_m)
+    colors = np.asarray(model.colors) if model.has_colors() else np.full((len(model.points), 3), 0.7)
     return PreparedCloud(
-        frame=frame.index,
+        frame=frame,
         cloud=down,
         features=features,
         model_points=np.asarray(model.points, dtype=np.float32),
-        model_colors=np.round(np.asarray(model.colors) * 255.0).astype(np.uint8),
+        model_colors=np.round(colors * 255.0).astype(np.uint8),
     )
 
 
-def _estimate_normals(cloud: o3d.geometry.PointCloud, config: FeatureIcpConfig) -> None:
+def _estimate_normals(cloud: o3d.geometry.PointCloud, config: FeatureIcpConfig, viewpoint: np.ndarray) -> None:
     radius = config.normal_radius_voxels * config.voxel_size_m
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=config.normal_max_nn))
-    # the camera centre is the viewpoint: n . (v - p) > 0 (seed 002, eq. 4.7)
-    cloud.orient_normals_towards_camera_location(np.zeros(3))
+    # normals face the viewpoint: n . (v - p) > 0 (seed 002, eq. 4.7)
+    cloud.orient_normals_towards_camera_location(np.asarray(viewpoint, dtype=np.float64))
 
 
 def compute_features(

@@ -71,7 +71,11 @@ class FeatureIcpConfig(PluginConfig):
     )
     # -- quality check and fallbacks ----------------------------------------------------------
     min_fitness: float = Field(0.3, ge=0, le=1, description="reject an alignment with a smaller inlier fraction")
-    max_inlier_rmse_m: float = Field(0.04, gt=0, description="reject an alignment with a larger inlier RMSE")
+    max_inlier_rmse_ratio: float = Field(
+        0.6, gt=0, le=1,
+        description="reject an alignment whose inlier RMSE exceeds this fraction of icp_distance_m "
+        "(residuals spread evenly over the search distance give 0.58)",
+    )
     max_translation_m: float | None = Field(
         None, gt=0, description="reject a relative motion longer than this (the robot's speed limit); none: no limit"
     )
@@ -90,6 +94,9 @@ class FeatureIcpConfig(PluginConfig):
     loop_max_angle_deg: float = Field(45.0, gt=0, le=180, description="... and whose viewing directions differ less")
     loop_min_gap: int = Field(10, ge=2, description="... and that are at least this many frames apart")
     loop_max_per_frame: int = Field(2, ge=1, description="loop registrations tried per frame at most (closest first)")
+    loop_preference: float = Field(
+        5.0, gt=0, description="pose graph: trust in loop edges against the chain (Open3D's preference_loop_closure)"
+    )
     edge_prune_threshold: float = Field(0.25, ge=0, le=1, description="pose graph: loop edges below this weight are dropped")
     # -- output -------------------------------------------------------------------------------
     model_voxel_m: float = Field(0.01, gt=0, description="voxel grid of the global model")

@@ -98,11 +98,15 @@ def quality_problem(result: reg.RegistrationResult, config: FeatureIcpConfig) ->
     """Why an ICP result is not trusted, or "" when it passes every check."""
     transform = np.asarray(result.transformation)
     if result.fitness <= 0:
-        return f"no point within {config.icp_distance_m:g} m of the target after ICP"
+        return f"fitness 0: no point within {config.icp_distance_m:g} m of the target after ICP"
     if result.fitness < config.min_fitness:
         return f"fitness {result.fitness:.3f} < min_fitness {config.min_fitness:g}"
-    if result.inlier_rmse > config.max_inlier_rmse_m:
-        return f"inlier RMSE {result.inlier_rmse:.4f} m > max_inlier_rmse_m {config.max_inlier_rmse_m:g}"
+    limit = config.max_inlier_rmse_ratio * config.icp_distance_m
+    if result.inlier_rmse > limit:
+        return (
+            f"inlier RMSE {result.inlier_rmse:.4f} m > {limit:.4g} m "
+            f"(max_inlier_rmse_ratio {config.max_inlier_rmse_ratio:g} of icp_distance_m)"
+        )
     moved = float(np.linalg.norm(transform[:3, 3]))
     if config.max_translation_m is not None and moved > config.max_translation_m:
         return f"translation {moved:.3f} m > max_translation_m {config.max_translation_m:g}"

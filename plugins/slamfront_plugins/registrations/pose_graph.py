@@ -68,8 +68,8 @@ def loop_candidates(
         for row in older[np.argsort(distance[older, newer], kind="stable")][: config.loop_max_per_frame]:
             pairs.append((int(frames[row]), int(frames[newer])))
     known = set(pairs)
-    pairs += [(a, b) for a, b in sorted(set(suggested)) if a in poses and b in poses and (a, b) not in known and a != b]
-    return pairs
+    ordered = {(min(a, b), max(a, b)) for a, b in suggested if a != b and a in poses and b in poses}
+    return pairs + sorted(ordered - known)
 
 
 def refine(
@@ -116,7 +116,7 @@ def refine(
     option = reg.GlobalOptimizationOption(
         max_correspondence_distance=config.icp_distance_m,
         edge_prune_threshold=config.edge_prune_threshold,
-        preference_loop_closure=1.0,
+        preference_loop_closure=config.loop_preference,
         reference_node=0,
     )
     with quiet():

@@ -67,6 +67,11 @@ class RgbdConfig(PluginConfig):
     start: int = Field(0, ge=0, description="first frame used")
     step: int = Field(1, ge=1, description="use every step-th frame")
     limit: int | None = Field(None, ge=1, description="at most this many frames")
+    poses_y_up: bool = Field(
+        False,
+        description="the poses are for a camera whose y axis points up (ICL-NUIM: its own code uses fy = -480); "
+        "they are mirrored (F P F, F = diag(1, -1, 1)) into slamfront's y-down camera",
+    )
 
 
 @dataclass(frozen=True)
@@ -105,6 +110,8 @@ class RgbdSequence(Source):
 
     def frames(self) -> Iterator[Frame]:
         fx, fy, cx, cy = self.intrinsics()
+        # mirroring both the camera and the world keeps the rotation proper (det +1)
+        mirror = np.diag([1.0, -1.0, 1.0, 1.0])
         for index, entry in enumerate(self.selected):
             image = read_image(entry.color)
             depth = read_depth(entry.depth, self.config.depth_scale, shape=image.shape[:2])
@@ -118,7 +125,7 @@ class RgbdSequence(Source):
                 name=entry.color.name,
                 depth=depth,
                 camera=camera,
-                pose=entry.pose,
+                pose=mirror @ entry.pose @ mirror if self.config.poses_y_up and entry.pose is not None else entry.pose,
             )
 
 

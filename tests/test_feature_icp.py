@@ -1,0 +1,169 @@
+"""The feature_icp registration on the real RGB-D samples, its log, model and bad input."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import open3d as o3d
+import pytest
+from slamfront import DataError, Frame, StageInputs
+from slamfront.mcaplog.reader import read_messages, summarize
+from slamfront.messages import CloudRegistration, PointCloud, RegisteredTrajectory
+from slamfront.recipe import build_pipeline, load_recipe
+from slamfront.runtime import run_pipeline
+from slamfront_plugins.registrations.config import FeatureIcpConfig
+from slamfront_plugins.registrations.feature_icp import FeatureIcp
+from slamfront_plugins.sources.rgbd import RgbdFolder
+
+FAST = ["registration.params.voxel_size_m=0.05", "log.images=false"]
+"""A 5 cm voxel grid: the samples register as well and several times faster."""
+
+
+def _run(recipe_name: str, out: Path, *overrides: str, plots: bool = False):
+    recipe, path = load_recipe(recipe_name, [*FAST, f"eval.plots={str(plots).lower()}", *overrides])
+    return run_pipeline(build_pipeline(recipe, str(path)), str(path), out, progress=False)
+
+
+@pytest.fixture(scope="module")
+def redwood_run(tmp_path_factory: pytest.TempPathFactory, shared_data: Path):
+    return _run("redwood_register", tmp_path_factory.mktemp("redwood"), plots=True)
+
+
+def test_redwood_registration_matches_the_given_poses(redwood_run) -> None:
+    metrics = redwood_run.metrics
+    assert metrics["n_clouds"] == 5 and metrics["n_aligned"] == 4 and metrics["n_failed"] == 0
+    assert metrics["rpe_rmse_m"] < 0.01  # the poses agree to millimetres (measured: 1.6 mm)
+    assert metrics["rpe_rot_rmse_deg"] < 0.5
+    assert metrics["fitness_mean"] > 0.9
+    for key in ("seconds", "seconds_preprocess", "seconds_features", "seconds_initial_alignment", "seconds_icp"):
+        assert metrics[key] > 0, key
+
+
+def test_redwood_model_is_written_and_matches_the_logged_model(redwood_run) -> None:
+    out = redwood_run.out_dir
+    model = o3d.io.read_point_cloud(str(out / "model.ply"))
+    assert len(model.points) == redwood_run.metrics["model_points"] > 10_000
+    assert model.has_colors()
+    logged = [m.decoded for m in read_messages(redwood_run.log_path, topics=["/registration/point_cloud"])]
+    final = [m for m in logged if m.role == "model"]
+    assert len(final) == 1 and len(logged) == 6  # five aligned clouds and the model
+    np.testing.assert_allclose(np.asarray(model.points), final[0].points, atol=1e-6)
+    report = (out / "report.md").read_text()
+    assert "Time per step" in report and "features (FPFH)" in report and "initial alignment (RANSAC)" in report
+    for figure in ("model.png", "registration_errors.png", "registration_seconds.png", "registration_trajectory.png"):
+        assert (out / figure).stat().st_size > 1000 and f"]({figure})" in report
+
+
+def test_redwood_log_has_clouds_poses_and_trajectory_for_foxglove(redwood_run) -> None:
+    summary = summarize(redwood_run.log_path)
+    topics = {t.topic: t for t in summary.topics}
+    assert topics["/registration/aligned_cloud"].schema_name == "foxglove.PointCloud"
+    assert topics["/registration/aligned_cloud"].count == 5
+    assert topics["/registration/model_cloud"].schema_name == "foxglove.PointCloud"
+    assert topics["/registration/pose"].schema_name == "foxglove.PoseInFrame"
+    assert topics["/registration/trajectory"].schema_name == "foxglove.PosesInFrame"
+    steps = [m.decoded for m in read_messages(redwood_run.log_path, topics=["/registration/cloud_registration"])]
+    assert [s.outcome for s in steps] == ["first", "aligned", "aligned", "aligned", "aligned"]
+    assert all(s.target == s.frame - 1 for s in steps[1:])
+    assert all({"cloud", "downsample", "normals", "features"} <= set(s.seconds) for s in steps)
+    trajectory = next(read_messages(redwood_run.log_path, topics=["/registration/registered_trajectory"])).decoded
+    np.testing.assert_array_equal(trajectory.poses[-1], steps[-1].pose)
+    # the Foxglove cloud carries the same points as slamfront's own message
+    fox = next(read_messages(redwood_run.log_path, topics=["/registration/aligned_cloud"])).decoded
+    packed = np.frombuffer(fox.data, dtype=np.uint8).reshape(-1, fox.point_stride)
+    xyz = packed[:, :12].copy().view("<f4").reshape(-1, 3)
+    first = next(read_messages(redwood_run.log_path, topics=["/registration/point_cloud"])).decoded
+    np.testing.assert_array_equal(xyz, first.points)
+    np.testing.assert_array_equal(packed[:, 12:15], first.colors)
+
+
+def test_icl_poses_are_mirrored_into_the_y_down_camera(tmp_path: Path, shared_data: Path) -> None:
+    """ICL-NUIM poses are for a y-up camera: mirrored, they agree with the clouds."""
+    mirrored = _run("icl_register", tmp_path / "a", "source.params.limit=2")
+    assert mirrored.metrics["rpe_rmse_m"] < 0.02  # measured: 8 mm
+    raw = _run("icl_register", tmp_path / "b", "source.params.limit=2", "source.params.poses_y_up=false")
+    assert raw.metrics["rpe_rot_rmse_deg"] > 20  # read as y-down they contradict the clouds
+
+
+def _redwood_frames(shared_data: Path, limit: int = 5) -> list[Frame]:
+    source = RgbdFolder(RgbdFolder.Config(
+        root=shared_data / "rgbd/redwood_sample", match_file="rgbd.match", poses="trajectory.log",
+        pose_format="redwood_log", intrinsics_file="camera_primesense.json", limit=limit,
+    ))
+    return list(source.frames())
+
+
+def _with_depth(frame: Frame, depth: np.ndarray) -> Frame:
+    return Frame(index=frame.index, timestamp=frame.timestamp, image=frame.image, name=frame.name, depth=depth,
+                 camera=frame.camera, pose=frame.pose)
+
+
+def test_unusable_frames_are_reported_not_fatal(shared_data: Path) -> None:
+    frames = _redwood_frames(shared_data)
+    few = np.zeros_like(frames[3].depth)
+    few[200:205, 300:305] = 1.5  # 25 pixels: too few points to register
+    frames[2] = _with_depth(frames[2], np.zeros_like(frames[2].depth))
+    frames[3] = _with_depth(frames[3], few)
+    plugin = FeatureIcp(FeatureIcpConfig(voxel_size_m=0.05))
+    steps = [plugin.process(StageInputs(frame=f))[0] for f in frames]
+    assert [s.outcome for s in steps] == ["first", "aligned", "failed", "failed", "aligned"]
+    assert "depth is all zero" in steps[2].reason and "00002.jpg" in steps[2].reason
+    assert "only 25 pixels with depth" in steps[3].reason
+    assert steps[4].target == 1  # aligned to the last usable cloud
+    assert steps[4].fitness > 0.9
+    trajectory, model = plugin.finish()
+    assert isinstance(trajectory, RegisteredTrajectory) and trajectory.frames.tolist() == [0, 1, 2, 3, 4]
+    assert isinstance(model, PointCloud) and model.role == "model" and len(model.points) > 1000
+
+
+def test_a_cloud_too_small_after_filtering_is_reported(shared_data: Path) -> None:
+    frame = _redwood_frames(shared_data, limit=1)[0]
+    plugin = FeatureIcp(FeatureIcpConfig(voxel_size_m=1.0))  # a 1 m grid leaves a handful of points
+    step = plugin.process(StageInputs(frame=frame))[0]
+    assert isinstance(step, CloudRegistration) and step.outcome == "failed"
+    assert "too few points after filtering" in step.reason and "min_points 100" in step.reason
+
+
+def test_wrong_depth_scale_gets_a_hint(shared_data: Path) -> None:
+    frame = _redwood_frames(shared_data, limit=1)[0]
+    metres_as_millimetres = _with_depth(frame, frame.depth * 1000.0)
+    step = FeatureIcp(FeatureIcpConfig()).process(StageInputs(frame=metres_as_millimetres))[0]
+    assert step.outcome == "failed" and "check the source's depth_scale" in step.reason
+
+
+def test_wrong_size_depth_in_a_frame_names_the_frame_and_field(shared_data: Path) -> None:
+    frame = _redwood_frames(shared_data, limit=1)[0]
+    half = _with_depth(frame, frame.depth[::2, ::2])
+    with pytest.raises(DataError, match=r"frame 0 \(00000.jpg\): depth: 320x240 but the image is 640x480"):
+        FeatureIcp(FeatureIcpConfig()).process(StageInputs(frame=half))
+    no_depth = _with_depth(frame, None)
+    with pytest.raises(DataError, match="depth: the source gives no depth image"):
+        FeatureIcp(FeatureIcpConfig()).process(StageInputs(frame=no_depth))
+
+
+def test_wrong_size_depth_file_stops_the_run_with_one_line(tmp_path: Path, shared_data: Path, cli) -> None:
+    sample = tmp_path / "redwood"
+    shutil.copytree(shared_data / "rgbd/redwood_sample", sample)
+    bad = sample / "depth/00002.png"
+    bad.chmod(0o644)
+    depth = cv2.imread(str(bad), cv2.IMREAD_ANYDEPTH)
+    cv2.imwrite(str(bad), cv2.resize(depth, (320, 240), interpolation=cv2.INTER_NEAREST))
+    code, _, err = cli("run", "redwood_register", "-o", tmp_path / "out", "-q", "--set", f"source.params.root={sample}",
+                       *(x for item in FAST for x in ("--set", item)))
+    assert code == 2
+    assert err.strip().count("\n") == 0 and "00002.png: depth is 320x240 but the colour image is 640x480" in err
+    summary = summarize(tmp_path / "out/run.mcap")
+    assert summary.complete  # the log written so far is finalised and readable
+    assert {t.topic: t.count for t in summary.topics}["/registration/cloud_registration"] == 2
+
+
+def test_config_refuses_features_without_an_initial_alignment(write_recipe, cli) -> None:
+    path = write_recipe({
+        "name": "bad", "source": {"plugin": "synthetic"},
+        "registration": {"plugin": "feature_icp", "params": {"feature": "none", "initial_alignment": "ransac"}},
+    })
+    code, _, err = cli("run", path, "-q")
+    assert code == 2 and "registration.params" in err and "needs features" in err
