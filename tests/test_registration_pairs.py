@@ -105,3 +105,22 @@ def test_ransac_is_deterministic_for_a_seed(shared_data: Path) -> None:
     first, _ = align(prepared[1], prepared[0], np.eye(4), np.eye(4), config, timer, seed=5)
     second, _ = align(prepared[1], prepared[0], np.eye(4), np.eye(4), config, timer, seed=5)
     np.testing.assert_array_equal(first.transform, second.transform)
+
+
+def test_previous_motion_fallback_rescues_a_failed_alignment(shared_data: Path) -> None:
+    """ICP from identity fails at 45 degrees; the previous-motion guess (within 5 deg) succeeds."""
+    spec = CLOUDS["3dmatch"]
+    config = FeatureIcpConfig(
+        **spec["config"], feature="none", initial_alignment="none", fallbacks=["wider", "previous_motion"]
+    )
+    source, target, truth = _clouds(shared_data, {**spec, "motion": ((0.0, 45.0, 0.0), (0.5, 0.0, 0.3))})
+    timer = StepTimer()
+    prepared_target = prepare_points(0, target, config, timer)
+    prepared_source = prepare_points(1, source, config, timer, invert(truth)[:3, 3])
+    nearly = truth.copy()
+    nearly[:3, :3] = Rotation.from_euler("y", 4, degrees=True).as_matrix() @ truth[:3, :3]
+    alignment, attempts = align(prepared_source, prepared_target, np.eye(4), nearly, config, timer, seed=1)
+    assert [a.method for a in attempts] == ["icp", "icp (wider)", "previous motion+icp"]
+    assert [a.passed for a in attempts] == [False, False, True]
+    assert alignment is attempts[-1]
+    assert rotation_angle_deg(invert(truth) @ alignment.transform) < 1.0

@@ -53,3 +53,30 @@ def pairwise(a: np.ndarray, b: np.ndarray, metric: Metric, chunk: int = 1024) ->
 def to_one(query: np.ndarray, rows: np.ndarray, metric: Metric) -> np.ndarray:
     """(M,) distances from one descriptor ``query`` (D,) to each row of ``rows`` (M, D)."""
     return pairwise(query[None, :], rows, metric)[0]
+
+
+def nearest_l2(queries: np.ndarray, rows: np.ndarray, chunk: int = 2048) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the nearest row (Euclidean) for each query, and its distance: ``(N,)``, ``(N,)``.
+
+    Exact brute force in float32 matrix products, ``chunk`` queries at a time (memory
+    ``chunk * M``). In high dimensions (FPFH 33, PFH 125) this beats a k-d tree, which
+    degenerates to a slower linear scan there.
+    """
+    queries = np.atleast_2d(np.asarray(queries, dtype=np.float32))
+    rows = np.atleast_2d(np.asarray(rows, dtype=np.float32))
+    if queries.shape[1] != rows.shape[1]:
+        raise CoreError(f"descriptor lengths differ: {queries.shape[1]} vs {rows.shape[1]}")
+    if len(rows) == 0:
+        raise CoreError("no rows to search")
+    row_norms = np.einsum("ij,ij->i", rows, rows)
+    index = np.empty(len(queries), dtype=np.int64)
+    distance = np.empty(len(queries), dtype=np.float32)
+    for start in range(0, len(queries), chunk):
+        block = queries[start : start + chunk]
+        # |q - r|^2 without the |q|^2 term, which does not change the argmin
+        partial = row_norms[None, :] - 2.0 * (block @ rows.T)
+        best = np.argmin(partial, axis=1)
+        index[start : start + chunk] = best
+        squared = partial[np.arange(len(block)), best] + np.einsum("ij,ij->i", block, block)
+        distance[start : start + chunk] = np.sqrt(np.maximum(squared, 0.0))
+    return index, distance
