@@ -183,3 +183,17 @@ def test_motion_beyond_the_limit_is_rejected_and_kept_out_of_the_model(shared_da
     first_only = FeatureIcp(FeatureIcpConfig(voxel_size_m=0.05))
     first_only.process(StageInputs(frame=frames[0]))
     assert len(model.points) == len(first_only.finish()[1].points)
+
+
+def test_pose_graph_run_adds_loop_edges_and_reports_both_errors(tmp_path: Path, shared_data: Path) -> None:
+    """Redwood's five frames all see the same corner: frames three apart make loop edges."""
+    run = _run("redwood_register", tmp_path, "registration.params.pose_graph=true",
+               "registration.params.loop_min_gap=3", "registration.params.loop_radius_m=0.5")
+    metrics = run.metrics
+    assert metrics["pose_graph_refined"] is True and metrics["n_loop_edges"] >= 2
+    assert metrics["rpe_rmse_m"] < 0.01 and metrics["rpe_rmse_m_chain"] < 0.01
+    assert metrics["seconds_pose_graph"] > 0
+    trajectory = next(read_messages(run.log_path, topics=["/registration/registered_trajectory"])).decoded
+    assert trajectory.refined and trajectory.frames.tolist() == [0, 1, 2, 3, 4]
+    assert {tuple(edge) for edge in trajectory.loop_edges} <= {(0, 3), (0, 4), (1, 4)}
+    assert o3d.io.read_point_cloud(str(tmp_path / "model.ply")).has_points()

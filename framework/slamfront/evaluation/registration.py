@@ -150,7 +150,10 @@ class RegistrationEvaluation(Evaluation):
         per_frame: dict[int, tuple[int, float, float]],
         figures: list[str],
     ) -> str:
-        method = next((p.method for p in pairs if p.outcome == "aligned"), "") or "icp"
+        # the configured method is what the first attempts were called ("fpfh+ransac+icp",
+        # "icp", "... (wider)"); "previous motion+icp" is a fallback's name
+        configured = [p.method.split(" ")[0] for p in pairs if p.target >= 0 and not p.method.startswith("previous")]
+        method = configured[0] if configured else "icp"
         feature, _, initial = method.partition("+")
         initial = initial.partition("+")[0]
         labels = {
