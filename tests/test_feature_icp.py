@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -197,3 +198,11 @@ def test_pose_graph_run_adds_loop_edges_and_reports_both_errors(tmp_path: Path, 
     assert trajectory.refined and trajectory.frames.tolist() == [0, 1, 2, 3, 4]
     assert {tuple(edge) for edge in trajectory.loop_edges} <= {(0, 3), (0, 4), (1, 4)}
     assert o3d.io.read_point_cloud(str(tmp_path / "model.ply")).has_points()
+
+
+def test_without_ground_truth_the_errors_are_null_not_made_up(tmp_path: Path, shared_data: Path) -> None:
+    run = _run("redwood_register", tmp_path, "source.params.poses=null", "source.params.limit=3")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["n_clouds"] == 3 and metrics["rpe_rmse_m"] is None and metrics["end_to_end_error_m"] is None
+    assert run.metrics["n_rpe_pairs"] == 0
+    assert "| 2 | 1 | aligned |" in (tmp_path / "report.md").read_text()

@@ -30,8 +30,8 @@ PFH_SPLITS = 5
 """Bins per angle (PCL's ``nr_subdiv``)."""
 PFH_BINS = PFH_SPLITS**3
 """Length of a PFH signature: 125."""
-_PAIR_CHUNK = 1 << 20
-"""Pairs processed at once (bounds the temporary arrays to some tens of MB)."""
+_PAIR_CHUNK = 1 << 19
+"""Pairs processed at once (bounds the temporary arrays to about 150 MB)."""
 
 
 def hybrid_neighbours(points: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
