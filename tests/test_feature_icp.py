@@ -206,3 +206,17 @@ def test_without_ground_truth_the_errors_are_null_not_made_up(tmp_path: Path, sh
     assert metrics["n_clouds"] == 3 and metrics["rpe_rmse_m"] is None and metrics["end_to_end_error_m"] is None
     assert run.metrics["n_rpe_pairs"] == 0
     assert "| 2 | 1 | aligned |" in (tmp_path / "report.md").read_text()
+
+
+def test_poses_y_up_mirrors_camera_and_world(shared_data: Path) -> None:
+    def first_pose(y_up: bool) -> np.ndarray:
+        source = RgbdFolder(RgbdFolder.Config(
+            root=shared_data / "rgbd/icl_livingroom_sample", poses="pose.txt", camera="icl_nuim", depth_scale=5000,
+            poses_y_up=y_up, limit=1,
+        ))
+        return next(iter(source.frames())).pose
+
+    raw, mirrored = first_pose(False), first_pose(True)
+    flip = np.diag([1.0, -1.0, 1.0, 1.0])
+    np.testing.assert_allclose(mirrored, flip @ raw @ flip)
+    assert np.linalg.det(mirrored[:3, :3]) == pytest.approx(1.0)

@@ -73,6 +73,11 @@ class FeatureIcpConfig(PluginConfig):
     )
     # -- quality check and fallbacks ----------------------------------------------------------
     min_fitness: float = Field(0.3, ge=0, le=1, description="reject an alignment with a smaller inlier fraction")
+    confident_fitness: float = Field(
+        0.8, ge=0, le=1,
+        description="accept an alignment at once from this fitness; below it the fallbacks are tried too "
+        "and the best fit that passes the check is kept (a second opinion on low-overlap pairs)",
+    )
     max_inlier_rmse_ratio: float = Field(
         0.6, gt=0, le=1,
         description="reject an alignment whose inlier RMSE exceeds this fraction of icp_distance_m "
@@ -118,6 +123,8 @@ class FeatureIcpConfig(PluginConfig):
                 f"feature {self.feature!r} is computed for nothing without an initial alignment: "
                 "set initial_alignment to ransac or fgr, or feature to none"
             )
+        if self.confident_fitness < self.min_fitness:
+            raise ValueError(f"confident_fitness {self.confident_fitness} is below min_fitness {self.min_fitness}")
         if self.min_depth_m >= self.max_depth_m:
             raise ValueError(f"min_depth_m {self.min_depth_m} must be below max_depth_m {self.max_depth_m}")
         return self

@@ -90,7 +90,15 @@ class FeatureIcp(Registration):
             return [CloudRegistration(outcome="rejected", pose=prior, reason=reason, **common)]
         pose = target_pose @ alignment.transform
         self._accept(prepared, pose, Link(frame.index, target.frame, alignment.transform))
-        outcome, reason = ("aligned", "") if alignment is attempts[0] else ("fallback", attempts[0].problem)
+        first = attempts[0]
+        if alignment is first:
+            outcome, reason = "aligned", ""
+        else:
+            outcome = "fallback"
+            reason = first.problem or (
+                f"{first.method}: fitness {first.fitness:.3f} below confident_fitness "
+                f"{self.config.confident_fitness:g}; {alignment.method} fits better ({alignment.fitness:.3f})"
+            )
         return self._with_cloud(CloudRegistration(outcome=outcome, pose=pose, reason=reason, **common), prepared)
 
     def _prior_pose(self, frame: Frame) -> np.ndarray:

@@ -194,11 +194,16 @@ def align(
 ) -> tuple[Alignment, list[Alignment]]:
     """Align ``source`` to ``target``: the configured attempt, then the fallbacks in order.
 
+    An attempt that passes the check with a fitness of at least ``confident_fitness``
+    ends the search. A lower one (little overlap, or a wrong alignment that still
+    overlaps, like a slide along a corridor) gets a second opinion: the fallbacks run
+    too and the best fit that passes wins.
+
     :param guess: source -> target transform from the motion prior (ICP alone starts here).
     :param motion_guess: source -> target transform if the previous motion repeated
         (the ``previous_motion`` fallback starts here).
-    :returns: the first attempt that passes the quality check (else the one with the
-        highest fitness) and every attempt made, in order.
+    :returns: the chosen attempt (passing the check if any does, else the best fit)
+        and every attempt made, in order.
     """
     features = config.initial_alignment != "none"
     name = f"{config.feature}+{config.initial_alignment}+icp" if features else "icp"
@@ -212,6 +217,7 @@ def align(
     matches: dict[str, np.ndarray] = {}
     for start, scale, method in plans:
         attempts.append(_attempt(source, target, config, timer, start, matches, seed, scale, method))
-        if attempts[-1].passed:
+        if attempts[-1].passed and attempts[-1].fitness >= config.confident_fitness:
             return attempts[-1], attempts
-    return max(attempts, key=lambda a: a.fitness), attempts
+    passing = [a for a in attempts if a.passed]
+    return max(passing or attempts, key=lambda a: a.fitness), attempts
