@@ -12,7 +12,7 @@ import open3d as o3d
 import pytest
 from slamfront import DataError, Frame, StageInputs
 from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import CloudRegistration, PointCloud, RegisteredTrajectory
+from slamfront.messages import CloudRegistration, LoopResult, PointCloud, RegisteredTrajectory
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.registrations.config import FeatureIcpConfig
@@ -220,3 +220,14 @@ def test_poses_y_up_mirrors_camera_and_world(shared_data: Path) -> None:
     flip = np.diag([1.0, -1.0, 1.0, 1.0])
     np.testing.assert_allclose(mirrored, flip @ raw @ flip)
     assert np.linalg.det(mirrored[:3, :3]) == pytest.approx(1.0)
+
+
+def test_loop_detector_matches_become_verified_loop_edges(shared_data: Path) -> None:
+    frames = _redwood_frames(shared_data, limit=4)
+    # pose-based candidates are off (loop_radius_m tiny): only the detector's match is tried
+    plugin = FeatureIcp(FeatureIcpConfig(pose_graph=True, loop_radius_m=1e-6, loop_min_gap=2))
+    for frame in frames:
+        detector = [LoopResult(frame=frame.index, match=0, confidence=0.9, accepted=frame.index == 3)]
+        plugin.process(StageInputs(frame=frame, outputs={"loop_detector": detector}))
+    trajectory, _ = plugin.finish()
+    assert trajectory.refined and trajectory.loop_edges.tolist() == [[0, 3]]
