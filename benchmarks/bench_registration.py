@@ -29,6 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import publish, table  # noqa: E402
+
 from slamfront.mcaplog.reader import read_messages  # noqa: E402
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402
 from slamfront.runtime import run_pipeline  # noqa: E402

@@ -8,9 +8,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.clouds import back_project, transform_points
 from slamfront.core.errors import CoreError
-from slamfront.core.geometry import relative_pose_errors
 from slamfront.errors import DataError
 from slamfront.formats.ply import write_ply
 from slamfront.mcaplog.foxglove import point_cloud
@@ -62,23 +62,6 @@ def _poses(yaws_deg: list[float], xs: list[float]) -> np.ndarray:
     return poses
 
 
-def test_relative_pose_error_is_zero_for_a_moved_copy_and_sees_each_step() -> None:
-    truth = _poses([0, 10, 20, 30], [0.0, 1.0, 2.0, 3.0])
-    anchor = np.eye(4)
-    anchor[:3, 3] = [5.0, -2.0, 1.0]
-    translation, rotation = relative_pose_errors(anchor @ truth, truth)  # the gauge does not matter
-    np.testing.assert_allclose(translation, 0.0, atol=1e-12)
-    np.testing.assert_allclose(rotation, 0.0, atol=1e-5)  # arccos near 1 rounds to ~1e-6 deg
-    estimate = _poses([0, 10, 22, 32], [0.0, 1.1, 2.1, 3.1])  # 10 cm too far on the first step, 2 deg off on the second
-    translation, rotation = relative_pose_errors(estimate, truth)
-    assert translation[0] == pytest.approx(0.1) and rotation[0] == pytest.approx(0.0, abs=1e-5)
-    assert rotation[1] == pytest.approx(2.0) and rotation[2] == pytest.approx(0.0, abs=1e-5)
-    pairs_t, _ = relative_pose_errors(estimate, truth, np.array([[0, 3]]))
-    assert pairs_t.shape == (1,)
-    with pytest.raises(CoreError):
-        relative_pose_errors(estimate[:2], truth)
-
-
 def test_write_ply_round_trips_through_open3d(tmp_path: Path) -> None:
     points = np.random.default_rng(1).normal(size=(50, 3)).astype(np.float32)
     colors = np.random.default_rng(2).integers(0, 256, (50, 3)).astype(np.uint8)
@@ -98,15 +81,15 @@ def test_write_ply_round_trips_through_open3d(tmp_path: Path) -> None:
 def test_foxglove_point_cloud_layout() -> None:
     points = np.array([[1.0, 2.0, 3.0], [-1.0, 0.5, 9.0]], dtype=np.float32)
     colors = np.array([[255, 0, 10], [1, 2, 3]], dtype=np.uint8)
-    message = point_cloud(points, colors, 123, "map")
+    message = point_cloud(points, 123, colors, "map")
     assert message.point_stride == 16 and message.frame_id == "map" and message.pose.orientation.w == 1.0
     assert [f.name for f in message.fields] == ["x", "y", "z", "red", "green", "blue", "alpha"]
     rows = np.frombuffer(message.data, dtype=np.uint8).reshape(2, 16)
     np.testing.assert_array_equal(rows[:, :12].copy().view("<f4"), points)
     np.testing.assert_array_equal(rows[:, 12:15], colors)
     assert (rows[:, 15] == 255).all()
-    grey = point_cloud(points, None, 0)
-    assert np.frombuffer(grey.data, dtype=np.uint8).reshape(2, 16)[0, 12] == 180
+    plain = point_cloud(points, 0)
+    assert plain.point_stride == 12 and [f.name for f in plain.fields] == ["x", "y", "z"]
 
 
 def test_registration_messages_round_trip() -> None:
@@ -120,17 +103,3 @@ def test_registration_messages_round_trip() -> None:
     assert [suffix for suffix, _ in cloud.foxglove(0)] == ["aligned_cloud"]
     assert [suffix for suffix, _ in step.foxglove(0)] == ["pose"]
     assert [suffix for suffix, _ in trajectory.foxglove(0)] == ["trajectory"]
-
-
-def test_nearest_l2_is_the_exact_nearest_row() -> None:
-    from scipy.spatial.distance import cdist
-    from slamfront.core.distances import nearest_l2
-
-    rng = np.random.default_rng(3)
-    rows, queries = rng.random((300, 33)), rng.random((5000, 33))
-    index, distance = nearest_l2(queries, rows, chunk=700)
-    full = cdist(queries, rows)
-    np.testing.assert_array_equal(index, np.argmin(full, axis=1))
-    np.testing.assert_allclose(distance, full.min(axis=1), rtol=1e-4)
-    with pytest.raises(CoreError, match="lengths differ"):
-        nearest_l2(queries, rows[:, :5])

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront.errors import RecipeError
 from slamfront.frame import Frame
 from slamfront.imageio import read_image
@@ -13,7 +14,6 @@ from slamfront.local_features import DESCRIPTORS, LocalFeatureExtractor
 from slamfront.plugin import StageInputs
 from slamfront.recipe import apply_overrides, build_pipeline, parse_recipe
 from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
-
 from tests.helpers import small_synthetic_recipe
 
 CASES = [(name, "fast" if spec.needs_detector else "native") for name, spec in DESCRIPTORS.items()]

@@ -9,6 +9,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.errors import CoreError
 from slamfront.core.point_features import PFH_BINS, hybrid_neighbours, pair_features, pfh
 

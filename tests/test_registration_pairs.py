@@ -12,6 +12,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.geometry import invert, rotation_angle_deg
 from slamfront_plugins.registrations.clouds import StepTimer, prepare_points
 from slamfront_plugins.registrations.config import FeatureIcpConfig

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from slamfront.errors import DataError
 from slamfront.formats.poses import read_kitti, read_pose_lines, read_redwood_log, read_tum, write_tum
 from slamfront.formats.tum_rgbd import associate

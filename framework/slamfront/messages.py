@@ -314,7 +314,7 @@ class PointCloud(Message):
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         from slamfront.mcaplog import foxglove
 
-        return [(f"{self.role}_cloud", foxglove.point_cloud(self.points, self.colors, stamp_ns, self.frame_id))]
+        return [(f"{self.role}_cloud", foxglove.point_cloud(self.points, stamp_ns, self.colors, self.frame_id))]
 
 
 @dataclass(frozen=True, eq=False)
@@ -376,3 +376,172 @@ class RegisteredTrajectory(Message):
         from slamfront.mcaplog import foxglove
 
         return [("trajectory", foxglove.poses_in_frame(self.poses, stamp_ns))]
+
+
+@dataclass(frozen=True, eq=False)
+class StageStatistics(Message):
+    """A stage's :meth:`~slamfront.plugin.Stage.statistics` at the end of the run.
+
+    Logged on ``/<kind>/stage_statistics`` so a replay that reads this stage from the
+    log reports the same counters without running it.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.StageStatistics"
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class RunEvent(Message):
+    """A step of the run itself, so a reader can tell the phases apart.
+
+    ``event`` is ``"finish"`` just before the stages' ``finish()`` is called: stage
+    messages after it were produced at the end of the run, not for the last frame.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.RunEvent"
+    event: str
+    n_frames: int
+
+
+@dataclass(frozen=True, eq=False)
+class LoopTruth(Message):
+    """The source's loop ground truth (``LoopGroundTruth`` in compressed-row form).
+
+    Logged once at the end of a run, so evaluating a replay needs only the log.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.LoopTruth"
+    queries: np.ndarray
+    """(Q,) int64 query frame indices, sorted."""
+    indptr: np.ndarray
+    """(Q + 1,) int64 row offsets into ``matches``."""
+    matches: np.ndarray
+    """(M,) int64 correct matches of each query, by row."""
+
+
+# --- localization ----------------------------------------------------------------------
+
+
+def _pose_in_map(suffix: str, pose: np.ndarray | None, stamp_ns: int) -> list[tuple[str, Any]]:
+    """``[(suffix, foxglove.PoseInFrame)]`` for a known pose, else nothing."""
+    if pose is None:
+        return []
+    from slamfront.mcaplog import foxglove  # lazy: the log package imports this module
+
+    return [(suffix, foxglove.pose_in_frame(pose, stamp_ns))]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseEstimate(Message):
+    """A localizer's answer for one frame: the keyframe it recognised and the pose it infers.
+
+    ``keyframe`` is the frame index of the chosen keyframe, or -1 when the frame could
+    not be localized (``reason`` says why). ``pose`` is the estimated camera-to-world
+    transform: the keyframe's stored pose, or that pose corrected by PnP when
+    ``refined`` is true; ``keyframe_pose`` is the keyframe's pose either way, so one
+    run scores both.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.PoseEstimate"
+    frame: int
+    keyframe: int
+    node: int = -1
+    """Position of the keyframe in the map (0 = first keyframe)."""
+    pose: np.ndarray | None = None
+    """(4, 4) estimated camera-to-world transform."""
+    keyframe_pose: np.ndarray | None = None
+    """(4, 4) the chosen keyframe's stored camera-to-world transform."""
+    inliers: int = 0
+    """Two-image matches with the chosen keyframe that survived RANSAC (the similarity)."""
+    second_inliers: int = 0
+    """The same for the best other keyframe (how ambiguous the answer is)."""
+    refined: bool = False
+    pnp_inliers: int = 0
+    candidates: np.ndarray | None = None
+    """(K,) int64 frame indices of the keyframes compared in full, most similar first."""
+    n_compared: int = 0
+    """Keyframes matched in full (all of them without pre-selection)."""
+    reason: str = ""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """The estimated pose as a ``PoseInFrame`` in ``map`` (suffix ``pose``)."""
+        return _pose_in_map("pose", self.pose, stamp_ns)
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeAdded(Message):
+    """A frame became a keyframe (a node of the topological map) during training."""
+
+    schema_name: ClassVar[str] = "slamfront.KeyframeAdded"
+    frame: int
+    node: int
+    pose: np.ndarray | None = None
+    """(4, 4) the keyframe's camera-to-world pose (from the source's ground truth)."""
+    n_features: int = 0
+    reason: str = ""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """The keyframe's pose as a ``PoseInFrame`` (suffix ``keyframe_pose``)."""
+        return _pose_in_map("keyframe_pose", self.pose, stamp_ns)
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeMap(Message):
+    """The whole keyframe map at the end of a run (frames and poses of its nodes)."""
+
+    schema_name: ClassVar[str] = "slamfront.KeyframeMap"
+    frames: np.ndarray
+    """(K,) int64 frame index of each keyframe, in node order."""
+    poses: np.ndarray | None = None
+    """(K, 4, 4) their camera-to-world poses, when known."""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """All keyframe poses as one ``PosesInFrame`` (suffix ``keyframes``)."""
+        if self.poses is None or len(self.poses) == 0:
+            return []
+        from slamfront.mcaplog import foxglove
+
+        return [("keyframes", foxglove.poses_in_frame(self.poses, stamp_ns))]
+
+
+@dataclass(frozen=True, eq=False)
+class BowStatistics(Message):
+    """A bag-of-words loop detector's state after one frame (vocabulary, memory, filter, time).
+
+    Counts refer to the state after the frame was processed. Float fields are NaN
+    where they do not apply (no features; no other rule tracked).
+    """
+
+    schema_name: ClassVar[str] = "slamfront.BowStatistics"
+    frame: int
+    n_features: int
+    new_words: int
+    vocabulary_size: int
+    """Words kept so far, in working or long-term memory (the seed's fig. 4)."""
+    active_words: int
+    """Words the nearest-word search scans (those of STM and WM places)."""
+    quantisation_error: float
+    """Mean distance of the frame's features to their words (the seed's fig. 6)."""
+    update_rule: str = "greedy"
+    other_rule: str = ""
+    """The other update rule, when the detector also tracks its vocabulary for comparison."""
+    other_vocabulary_size: int = -1
+    other_quantisation_error: float = float("nan")
+    place: int = -1
+    """The place this frame created or was merged into; -1 for none (no features, a query)."""
+    merged: bool = False
+    """The frame was more similar than T_sim to the previous one and merged into its place."""
+    stm_size: int = 0
+    wm_size: int = 0
+    """Places in working memory after this frame (the seed's fig. 9a)."""
+    ltm_size: int = 0
+    transferred: int = 0
+    retrieved: int = 0
+    no_loop_posterior: float = float("nan")
+    max_loop_posterior: float = float("nan")
+    """The largest p(S_t = i) (the seed's fig. 7)."""
+    loop_threshold: float = float("nan")
+    """T_loop: a loop is accepted when ``no_loop_posterior`` is below it."""
+    processing_seconds: float = 0.0
+    """This frame's detector time (the seed's fig. 9b)."""
+    time_budget_seconds: float = 0.0

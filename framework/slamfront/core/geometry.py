@@ -62,30 +62,3 @@ def rotation_angle_deg(pose: np.ndarray) -> float:
     """Angle of the rotation part in degrees (0 for identity)."""
     cosine = (np.trace(np.asarray(pose)[:3, :3]) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
-
-
-def relative_pose_errors(
-    estimated: np.ndarray, truth: np.ndarray, pairs: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Relative pose error of pose pairs (Sturm et al. 2012; seed 002, eq. 4.2).
-
-    For a pair (i, j): ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` with Q the ground truth and
-    P the estimate; independent of where either trajectory is anchored.
-
-    :param estimated: ``(N, 4, 4)`` estimated camera-to-world poses.
-    :param truth: ``(N, 4, 4)`` ground-truth poses of the same frames.
-    :param pairs: ``(M, 2)`` row indices ``(i, j)``; default consecutive rows (i, i + 1).
-    :returns: translation error norms (m) and rotation error angles (degrees), each ``(M,)``.
-    """
-    estimated = np.asarray(estimated, dtype=np.float64)
-    truth = np.asarray(truth, dtype=np.float64)
-    if estimated.shape != truth.shape or estimated.ndim != 3 or estimated.shape[1:] != (4, 4):
-        raise CoreError(f"need two (N, 4, 4) pose arrays, got {estimated.shape} and {truth.shape}")
-    if pairs is None:
-        pairs = np.stack([np.arange(len(truth) - 1), np.arange(1, len(truth))], axis=1)
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    errors = np.array([
-        invert(relative(truth[i], truth[j])) @ relative(estimated[i], estimated[j]) for i, j in pairs
-    ]).reshape(-1, 4, 4)
-    cosine = (np.trace(errors[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0
-    return np.linalg.norm(errors[:, :3, 3], axis=1), np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))

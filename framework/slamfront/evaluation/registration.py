@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamfront.core.geometry import relative_pose_errors
+from slamfront.core.trajectory import delta_pairs, relative_pose_error
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.formats.ply import write_ply
 from slamfront.messages import CloudRegistration, FrameInfo, Message, PointCloud, RegisteredTrajectory
@@ -111,7 +111,8 @@ class RegistrationEvaluation(Evaluation):
             return {}
         estimated = np.stack([poses[f] for f in frames])
         truth = np.stack([self._truth[f] for f in frames])
-        translation, rotation = relative_pose_errors(estimated, truth)
+        error = relative_pose_error(truth, estimated, delta_pairs(np.arange(len(frames)), 1))
+        translation, rotation = error.translation, error.rotation_deg
         return {frames[k + 1]: (frames[k], float(translation[k]), float(rotation[k])) for k in range(len(frames) - 1)}
 
     def _end_to_end(self, poses: dict[int, np.ndarray]) -> float | None:
@@ -121,7 +122,7 @@ class RegistrationEvaluation(Evaluation):
         first, last = frames[0], frames[-1]
         estimated = np.stack([poses[first], poses[last]])
         truth = np.stack([self._truth[first], self._truth[last]])
-        return float(relative_pose_errors(estimated, truth)[0][0])
+        return float(relative_pose_error(truth, estimated, np.array([[0, 1]])).translation[0])
 
     def _step_seconds(self, pairs: list[_Pair]) -> dict[str, float]:
         total: dict[str, float] = {}

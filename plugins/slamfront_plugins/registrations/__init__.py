@@ -1,7 +1,6 @@
 """Built-in registrations."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.registrations.feature_icp import FeatureIcp
 
 

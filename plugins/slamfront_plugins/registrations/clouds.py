@@ -15,10 +15,10 @@ from typing import TypeVar
 
 import numpy as np
 import open3d as o3d
+
 from slamfront import DataError, Frame
 from slamfront.core.clouds import back_project
 from slamfront.core.point_features import hybrid_neighbours, pfh
-
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 
 T = TypeVar("T")

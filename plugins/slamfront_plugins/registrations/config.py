@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Literal
 
 from pydantic import Field, model_validator
+
 from slamfront import PluginConfig
 
 Fallback = Literal["wider", "previous_motion"]

@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+
 from slamfront import Frame, Registration, StageInputs
 from slamfront.core.clouds import transform_points
 from slamfront.core.geometry import invert
 from slamfront.messages import CloudRegistration, LoopResult, Message, PointCloud, RegisteredTrajectory
-
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, UnusableFrame, prepare_cloud
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.model import ModelBuilder

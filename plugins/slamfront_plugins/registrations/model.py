@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+
 from slamfront.core.clouds import transform_points
 
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
-from slamfront.core.distances import nearest_l2
-from slamfront.core.geometry import rotation_angle_deg
 
+from slamfront.core.distances import nearest_two
+from slamfront.core.geometry import rotation_angle_deg
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 
@@ -54,15 +54,15 @@ def feature_matches(source: PreparedCloud, target: PreparedCloud, mutual: bool) 
 
     As Open3D's ``correspondences_from_features`` (every source point's nearest target
     feature; with ``mutual``, only pairs that are each other's nearest, unless fewer
-    than 10 % of points have one), by a brute-force search several times faster than
-    its k-d tree in 33 or 125 dimensions.
+    than 10 % of points have one), by the shared brute-force search (``nearest_two``), several
+    times faster than its k-d tree in 33 or 125 dimensions.
     """
     source_features = np.asarray(source.features.data).T
     target_features = np.asarray(target.features.data).T
-    forward, _ = nearest_l2(source_features, target_features)
+    forward = nearest_two(source_features, target_features, "l2")[2]
     pairs = np.stack([np.arange(len(forward)), forward], axis=1)
     if mutual:
-        backward, _ = nearest_l2(target_features, source_features)
+        backward = nearest_two(target_features, source_features, "l2")[2]
         kept = pairs[backward[forward] == pairs[:, 0]]
         if len(kept) >= MUTUAL_MIN_RATIO * len(pairs):
             pairs = kept

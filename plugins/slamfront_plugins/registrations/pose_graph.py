@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
-from slamfront.core.geometry import invert, relative
 
+from slamfront.core.geometry import invert, relative
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.pairwise import align, quiet

@@ -17,16 +17,10 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field
+
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
-from slamfront.formats.poses import (
-    Trajectory,
-    numbered_fields,
-    read_kitti,
-    read_pose_lines,
-    read_redwood_log,
-    read_tum,
-)
+from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
 
@@ -43,9 +37,8 @@ KNOWN_CAMERAS = MappingProxyType(
 )
 KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim", "slambook_room"]
 
-POSE_READERS = MappingProxyType(
-    {"pose_lines": read_pose_lines, "redwood_log": read_redwood_log, "tum": read_tum, "kitti": read_kitti}
-)
+POSE_READERS = TRAJECTORY_READERS
+_FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
 class Intrinsics(PluginConfig):
@@ -67,10 +60,10 @@ class RgbdConfig(PluginConfig):
     start: int = Field(0, ge=0, description="first frame used")
     step: int = Field(1, ge=1, description="use every step-th frame")
     limit: int | None = Field(None, ge=1, description="at most this many frames")
-    poses_y_up: bool = Field(
+    flip_y: bool = Field(
         False,
-        description="the poses are for a camera whose y axis points up (ICL-NUIM: its own code uses fy = -480); "
-        "they are mirrored (F P F, F = diag(1, -1, 1)) into slamfront's y-down camera",
+        description="the poses use a y-up camera and world (ICL-NUIM's POV-Ray convention): "
+        "read them as diag(1,-1,1) T diag(1,-1,1), so they agree with the images",
     )
 
 
@@ -110,8 +103,6 @@ class RgbdSequence(Source):
 
     def frames(self) -> Iterator[Frame]:
         fx, fy, cx, cy = self.intrinsics()
-        # mirroring both the camera and the world keeps the rotation proper (det +1)
-        mirror = np.diag([1.0, -1.0, 1.0, 1.0])
         for index, entry in enumerate(self.selected):
             image = read_image(entry.color)
             depth = read_depth(entry.depth, self.config.depth_scale, shape=image.shape[:2])
@@ -125,7 +116,7 @@ class RgbdSequence(Source):
                 name=entry.color.name,
                 depth=depth,
                 camera=camera,
-                pose=mirror @ entry.pose @ mirror if self.config.poses_y_up and entry.pose is not None else entry.pose,
+                pose=entry.pose if entry.pose is None or not self.config.flip_y else _FLIP_Y @ entry.pose @ _FLIP_Y,
             )
 
 
