@@ -103,3 +103,20 @@ def test_registration_messages_round_trip() -> None:
     assert [suffix for suffix, _ in cloud.foxglove(0)] == ["aligned_cloud"]
     assert [suffix for suffix, _ in step.foxglove(0)] == ["pose"]
     assert [suffix for suffix, _ in trajectory.foxglove(0)] == ["trajectory"]
+
+
+def test_depth_overlap_is_full_for_the_same_view_and_zero_for_a_turned_back_camera() -> None:
+    from slamfront.core.clouds import depth_overlap
+
+    k = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    depth = np.full((48, 64), 2.0, dtype=np.float32)
+    depth[:, :8] = 0.0  # no return: not counted
+    assert depth_overlap(depth, k, depth, k, np.eye(4)) == 1.0
+    turned = np.diag([-1.0, 1.0, -1.0, 1.0])  # 180 degrees about y: B's wall is behind A
+    assert depth_overlap(depth, k, depth, k, turned) == 0.0
+    shifted = np.eye(4)
+    shifted[0, 3] = 0.5  # 25 px to the right at 2 m: B's columns 8..63 land on 33..88, of which 33..63 are in A
+    assert depth_overlap(depth, k, depth, k, shifted) == pytest.approx(31 / 56)
+    closer = np.eye(4)
+    closer[2, 3] = -0.5  # 1.5 m where A measured 2 m: a different surface
+    assert depth_overlap(depth, k, depth, k, closer) == 0.0

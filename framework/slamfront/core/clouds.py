@@ -46,3 +46,35 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     rotation = transform[:3, :3].astype(points.dtype, copy=False)
     translation = transform[:3, 3].astype(points.dtype, copy=False)
     return points @ rotation.T + translation
+
+
+def depth_overlap(
+    depth_a: np.ndarray,
+    intrinsics_a: np.ndarray,
+    depth_b: np.ndarray,
+    intrinsics_b: np.ndarray,
+    b_to_a: np.ndarray,
+    tolerance: float = 0.05,
+) -> float:
+    """Share of view B's valid depth pixels that view A also sees, given the true motion.
+
+    A point of B counts when, moved into A's camera by ``b_to_a``, it lies in front of A,
+    inside A's image, and at A's measured depth there within ``tolerance`` (relative).
+    0 means no surface is seen by both: no pairwise registration can succeed.
+    """
+    points, _ = back_project(depth_b, intrinsics_b)
+    if len(points) == 0:
+        return 0.0
+    moved = transform_points(np.asarray(b_to_a, dtype=np.float64), points)
+    k = np.asarray(intrinsics_a, dtype=np.float64)
+    z = moved[:, 2]
+    ahead = z > 1e-6
+    safe_z = np.where(ahead, z, 1.0)
+    u = np.round(k[0, 0] * moved[:, 0] / safe_z + k[0, 2]).astype(np.int64)
+    v = np.round(k[1, 1] * moved[:, 1] / safe_z + k[1, 2]).astype(np.int64)
+    height, width = np.asarray(depth_a).shape
+    inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    seen = np.zeros(len(points), dtype=bool)
+    measured = np.asarray(depth_a, dtype=np.float64)[v[inside], u[inside]]
+    seen[inside] = (measured > 0) & (np.abs(measured - z[inside]) <= tolerance * z[inside])
+    return float(seen.mean())
