@@ -11,6 +11,7 @@ from slamfront.evaluation.bow import BowEvaluation
 from slamfront.evaluation.frames import FrameOverview
 from slamfront.evaluation.localization import LocalizationEvaluation
 from slamfront.evaluation.loops import LoopClosureEvaluation
+from slamfront.evaluation.registration import RegistrationEvaluation
 from slamfront.evaluation.retrieval import DescriptorRetrieval
 from slamfront.plugin import Kind
 
@@ -23,6 +24,8 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
         chosen.append(BowEvaluation())  # reports only when a detector emits BowStatistics
+    if "registration" in kinds:
+        chosen.append(RegistrationEvaluation())
     if "localizer" in kinds:
         chosen.append(LocalizationEvaluation())
     return chosen

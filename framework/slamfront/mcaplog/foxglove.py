@@ -134,13 +134,15 @@ def point_cloud(
             PackedElementField(name=name, offset=12 + k, type=PackedElementField.UINT8)
             for k, name in enumerate(("red", "green", "blue", "alpha"))
         ]
-    return PointCloud(
+    message = PointCloud(
         timestamp=timestamp(stamp_ns),
         frame_id=frame_id,
         point_stride=int(record.itemsize if colors is not None else 12),
         fields=fields,
         data=record.tobytes(),
     )
+    message.pose.orientation.w = 1.0  # the identity: the points are already in frame_id
+    return message
 
 
 def line_entity(

@@ -137,6 +137,92 @@ def _save_top_view(plt: Any, fig: Any, ax: Any, axes: tuple[int, int], title: st
     return path
 
 
+def pair_errors(
+    frames: np.ndarray, translation_m: np.ndarray, rotation_deg: np.ndarray, fitness: np.ndarray, path: Path,
+    title: str = "",
+) -> Path:
+    """Per-pair relative pose error (translation, rotation) and registration fitness by frame."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(7, 6), dpi=110, sharex=True)
+    for ax, values, label, colour in (
+        (axes[0], translation_m * 100.0, "RPE translation [cm]", "tab:blue"),
+        (axes[1], rotation_deg, "RPE rotation [deg]", "tab:orange"),
+        (axes[2], fitness, "fitness", "tab:green"),
+    ):
+        finite = np.isfinite(values)
+        ax.bar(frames[finite], values[finite], color=colour, width=0.8)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3, axis="y")
+    axes[2].set_ylim(0, 1.02)
+    axes[2].set_xlabel("frame")
+    axes[0].set_title(title or "per-pair errors")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def stacked_seconds(frames: np.ndarray, steps: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
+    """Time per processing step for each frame, stacked: ``{step: (N,) seconds}``."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3.8), dpi=110)
+    bottom = np.zeros(len(frames))
+    for label, seconds in steps.items():
+        ax.bar(frames, seconds, bottom=bottom, label=label, width=0.8)
+        bottom = bottom + seconds
+    ax.set_xlabel("frame")
+    ax.set_ylabel("seconds")
+    ax.set_title(title or "time per step")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=7, ncols=min(len(steps), 4))
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def cloud_top_view(
+    points: np.ndarray, colors: np.ndarray | None, path: Path, title: str = "", max_points: int = 200_000,
+    cameras: np.ndarray | None = None, up: np.ndarray | None = None,
+) -> Path:
+    """A point cloud seen from above, in its own colours.
+
+    :param cameras: optional (M, 3) camera positions drawn as a path.
+    :param up: the world's up direction (for cameras: minus their mean y axis, which
+        points down); default: look along the axis the cloud spreads least in.
+    """
+    plt = _pyplot()
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) > max_points:  # evenly thinned: a picture needs no more
+        keep = np.linspace(0, len(points) - 1, max_points).astype(np.int64)
+        points = points[keep]
+        colors = None if colors is None else np.asarray(colors)[keep]
+    if up is None or not np.linalg.norm(up) > 0:
+        up = np.eye(3)[int(np.argmin(np.ptp(points, axis=0)))] if len(points) else np.array([0.0, 0.0, 1.0])
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first /= np.linalg.norm(first)
+    basis = np.stack([first, np.cross(up, first), up], axis=1)  # columns: right-handed plane axes, then up
+    fig, ax = plt.subplots(figsize=(6, 5.5), dpi=120)
+    if len(points):
+        flat = points @ basis
+        order = np.argsort(flat[:, 2])  # draw low to high so the top stays visible
+        shown = None if colors is None else np.asarray(colors)[order] / 255.0
+        ax.scatter(flat[order, 0], flat[order, 1], c=shown, s=0.3, linewidths=0)
+        if cameras is not None and len(cameras):
+            seen = np.asarray(cameras) @ basis
+            ax.plot(seen[:, 0], seen[:, 1], color="tab:red", linewidth=1.0, marker=".", markersize=3, label="cameras")
+            ax.legend(fontsize=8)
+    ax.set_xlabel("[m]")
+    ax.set_ylabel("[m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(title or "model (top view)")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def _top_view_axes(points: np.ndarray) -> tuple[int, int]:
     """The two axes a path spreads in most: (x, y), or (x, z) for y-down camera conventions."""
     spread = np.ptp(points, axis=0) if len(points) else np.ones(3)
