@@ -280,12 +280,12 @@ def run_pipeline(
         log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
 
     metrics["log_bytes"] = log_path.stat().st_size
-    metrics_path = _write_json_atomically(out_dir / "metrics.json", metrics)
+    metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
     return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
 
 
-def _write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
+def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
     """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")

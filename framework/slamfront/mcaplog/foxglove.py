@@ -9,14 +9,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.Color_pb2 import Color
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.timestamp_pb2 import Timestamp
 from scipy.spatial.transform import Rotation
 
@@ -108,6 +111,35 @@ def frame_transforms(matrix: np.ndarray, stamp_ns: int, parent: str = MAP_FRAME,
     transform.rotation.x, transform.rotation.y = float(qx), float(qy)
     transform.rotation.z, transform.rotation.w = float(qz), float(qw)
     return FrameTransforms(transforms=[transform])
+
+
+def scene_lines(
+    segments: np.ndarray,
+    stamp_ns: int,
+    entity_id: str,
+    color: tuple[float, float, float, float] = (0.9, 0.1, 0.1, 1.0),
+    thickness_px: float = 2.0,
+    frame_id: str = MAP_FRAME,
+) -> SceneUpdate:
+    """Line segments as one ``SceneUpdate`` entity (a LINE_LIST), e.g. loop-closure edges.
+
+    :param segments: (K, 2, 3) or (K, 2, 2) segment endpoints (planar ones at z = 0).
+    :param entity_id: the entity to replace: a later update with the same id redraws it.
+    """
+    segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, np.shape(segments)[-1] if len(segments) else 3)
+    if segments.shape[-1] == 2:
+        segments = np.concatenate([segments, np.zeros((*segments.shape[:2], 1))], axis=-1)
+    update = SceneUpdate()
+    entity = update.entities.add(timestamp=timestamp(stamp_ns), frame_id=frame_id, id=entity_id)
+    entity.frame_locked = True
+    line = entity.lines.add(
+        type=LinePrimitive.LINE_LIST, thickness=thickness_px, scale_invariant=True,
+        color=Color(r=color[0], g=color[1], b=color[2], a=color[3]),
+    )
+    line.pose.orientation.w = 1.0
+    for x, y, z in segments.reshape(-1, 3).tolist():
+        line.points.add(x=x, y=y, z=z)
+    return update
 
 
 _LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}

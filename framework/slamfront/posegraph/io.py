@@ -1,0 +1,192 @@
+"""Reading pose graphs and ground truth from files and run logs; writing results.
+
+Errors name the file (and line) and are :class:`~slamfront.errors.DataError`, so the
+CLI reports them in one line with exit code 2.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from slamfront.core import lie
+from slamfront.core.errors import CoreError
+from slamfront.core.graph_files import (
+    RECORDS,
+    GraphFormat,
+    ParsedGraph,
+    ParsedTrajectory,
+    format_g2o,
+    format_tum,
+    parse_graph,
+    parse_trajectory,
+)
+from slamfront.core.posegraph import PoseGraph, compose_initial_poses
+from slamfront.errors import DataError
+from slamfront.mcaplog.reader import read_messages, summarize
+from slamfront.messages import FrameInfo, PoseGraphState
+
+
+def read_lines(path: Path) -> list[str]:
+    """A text file's lines.
+
+    :raises DataError: missing, unreadable, a folder, or not text.
+    """
+    try:
+        with open(path, encoding="utf-8") as stream:
+            return stream.readlines()
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: is a folder, not a file") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path}: not a text file") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+def _parse(lines: list[str], name: str, graph_format: GraphFormat) -> ParsedGraph:
+    try:
+        return parse_graph(lines, name, graph_format)
+    except CoreError as exc:
+        raise DataError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class LoadedGraph:
+    """A graph from a file or log, and ground truth found beside it.
+
+    :ivar ground_truth: (N, d) true positions of the graph's vertices when the input
+        carries them (a run log's frame poses), else None.
+    """
+
+    parsed: ParsedGraph
+    ground_truth: np.ndarray | None = None
+
+
+def read_graph(path: Path, graph_format: GraphFormat = "auto") -> LoadedGraph:
+    """A g2o or iSAM file, or the pose graph a back end logged in a run's ``run.mcap``."""
+    path = Path(path)
+    if path.suffix == ".mcap":
+        return graph_from_log(path)
+    return LoadedGraph(_parse(read_lines(path), str(path), graph_format))
+
+
+def graph_from_log(path: Path) -> LoadedGraph:
+    """The last :class:`~slamfront.messages.PoseGraphState` in a run log, with the
+    ground-truth poses of its frames when the source logged them.
+
+    :raises LogError: not a readable log; DataError: no back-end graph in it.
+    """
+    summary = summarize(path)
+    topics = [t.topic for t in summary.topics if t.schema_name == PoseGraphState.schema_name]
+    if not topics:
+        raise DataError(f"{path}: the log has no pose graph (a {PoseGraphState.schema_name} message); "
+                        "run a recipe with a backend stage, or give a g2o file")
+    state: PoseGraphState | None = None
+    truth: dict[int, np.ndarray] = {}
+    for logged in read_messages(path, topics=[*topics, "/frames"], strict=summary.complete):
+        message = logged.decoded
+        if isinstance(message, PoseGraphState):
+            state = message
+        elif isinstance(message, FrameInfo) and message.pose is not None:
+            truth[message.frame] = message.pose[:3, 3]
+    assert state is not None
+    try:
+        graph = state.to_graph(name=str(path))
+    except CoreError as exc:
+        raise DataError(str(exc)) from None
+    positions = None
+    if truth and all(int(v) in truth for v in graph.ids):
+        positions = np.array([truth[int(v)] for v in graph.ids])[:, : graph.dim]
+    return LoadedGraph(ParsedGraph(graph, "log"), positions)
+
+
+def _is_graph_text(lines: list[str]) -> bool:
+    for line in lines:
+        tokens = line.split("#", 1)[0].split()
+        if tokens:
+            return tokens[0] in RECORDS or not _numeric(tokens[0])
+    return False
+
+
+def _numeric(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def read_ground_truth(path: Path, graph: PoseGraph) -> np.ndarray:
+    """True positions (N, d) of ``graph``'s vertices, in the order of ``graph.ids``.
+
+    Accepts a trajectory (TUM lines, ``x y theta`` lines, KITTI rows) or a noise-free
+    graph file in any supported format, whose poses come from composing its odometry.
+    Trajectory rows match vertex ids by line index (``x y theta``, KITTI) or, for TUM,
+    by timestamp when the timestamps are the vertex ids, else by order when there is one
+    row per vertex.
+
+    :raises DataError: the file does not cover the graph's vertices, or is malformed.
+    """
+    path = Path(path)
+    lines = read_lines(path)
+    try:
+        if _is_graph_text(lines):
+            truth = parse_graph(lines, str(path)).graph
+            poses = compose_initial_poses(truth)
+            missing = ~np.isin(graph.ids, truth.ids)
+            if np.any(missing):
+                raise DataError(f"{path}: ground-truth graph has no vertex {int(graph.ids[np.argmax(missing)])}")
+            positions = poses[truth.index_of(graph.ids), : truth.dim, truth.dim]
+        else:
+            positions = _trajectory_positions(parse_trajectory(lines, str(path)), graph, path)
+    except CoreError as exc:
+        raise DataError(str(exc)) from None
+    if positions.shape[1] < graph.dim:
+        raise DataError(f"{path}: ground truth is 2-D but {graph.name} is a 3-D graph")
+    return positions[:, : graph.dim]
+
+
+def _trajectory_positions(trajectory: ParsedTrajectory, graph: PoseGraph, path: Path) -> np.ndarray:
+    d = lie.dimension_of(trajectory.poses)
+    positions = trajectory.poses[:, :d, d]
+    stamps = trajectory.stamps
+    if trajectory.format == "tum":
+        as_ids = np.round(stamps).astype(np.int64)
+        if np.allclose(stamps, as_ids) and np.all(np.isin(graph.ids, as_ids)):
+            _, first = np.unique(as_ids, return_index=True)
+            lookup = dict(zip(as_ids[first].tolist(), first.tolist()))
+            return positions[[lookup[int(v)] for v in graph.ids]]
+        if len(stamps) == graph.n_vertices:
+            return positions
+        raise DataError(
+            f"{path}: {len(stamps)} TUM poses for {graph.n_vertices} vertices, and the timestamps are not the "
+            "vertex ids: cannot tell which pose is which vertex"
+        )
+    if graph.ids[0] < 0 or graph.ids[-1] >= len(positions):
+        raise DataError(
+            f"{path}: {len(positions)} rows (vertex 0 to {len(positions) - 1}) do not cover vertex {int(graph.ids[-1])}"
+        )
+    return positions[graph.ids]
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Write through a temporary file and a rename: a crash never leaves half a file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
+    """The graph with ``poses`` as its vertices, as g2o."""
+    return write_text(path, format_g2o(graph, poses))
+
+
+def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray, stamps: np.ndarray | None = None) -> Path:
+    """Poses as a TUM trajectory; timestamps are the vertex ids unless given."""
+    return write_text(path, format_tum(graph.ids.astype(np.float64) if stamps is None else stamps, poses))
