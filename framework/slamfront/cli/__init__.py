@@ -12,10 +12,10 @@ import sys
 from collections.abc import Sequence
 
 import slamfront
-from slamfront.cli import inspect_cmd, optimize_cmd, plugins_cmd, recipes_cmd, run_cmd
+from slamfront.cli import inspect_cmd, optimize_cmd, outliers_cmd, plugins_cmd, recipes_cmd, run_cmd
 from slamfront.errors import SlamfrontError
 
-COMMANDS = (run_cmd, plugins_cmd, inspect_cmd, recipes_cmd, optimize_cmd)
+COMMANDS = (run_cmd, plugins_cmd, inspect_cmd, recipes_cmd, optimize_cmd, outliers_cmd)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -6,6 +6,7 @@ Each evaluation watches the run's messages and, at the end, produces metrics for
 
 from __future__ import annotations
 
+from slamfront.evaluation.backend import BackendEvaluation
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.evaluation.frames import FrameOverview
 from slamfront.evaluation.loops import LoopClosureEvaluation
@@ -17,6 +18,8 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
     chosen: list[Evaluation] = [FrameOverview()]
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
+    if "backend" in kinds:
+        chosen.append(BackendEvaluation())
     return chosen
 
 

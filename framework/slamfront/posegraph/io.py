@@ -27,7 +27,7 @@ from slamfront.core.graph_files import (
 from slamfront.core.posegraph import PoseGraph, compose_initial_poses
 from slamfront.errors import DataError
 from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import FrameInfo, PoseGraphState
+from slamfront.messages import FrameInfo, PoseGraphState, RelativePose
 
 
 def read_lines(path: Path) -> list[str]:
@@ -190,3 +190,80 @@ def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
 def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray, stamps: np.ndarray | None = None) -> Path:
     """Poses as a TUM trajectory; timestamps are the vertex ids unless given."""
     return write_text(path, format_tum(graph.ids.astype(np.float64) if stamps is None else stamps, poses))
+
+
+@dataclass(frozen=True)
+class OdometryTable:
+    """Motion between frames read from a file, for a back end's odometry.
+
+    Exactly one of the lookups is set: ``by_index`` (poses by frame index: ``x y theta``
+    and KITTI rows, graph vertices), ``stamps``/``stamped`` (TUM poses by time), or
+    ``relative`` (RelativePose messages of a run log, by (from, to) frame).
+    """
+
+    path: Path
+    by_index: dict[int, np.ndarray] | None = None
+    stamps: np.ndarray | None = None
+    stamped: np.ndarray | None = None
+    relative: dict[tuple[int, int], tuple[np.ndarray, np.ndarray | None]] | None = None
+    max_time_difference: float = 0.02
+
+    def between(self, previous: tuple[int, float], current: tuple[int, float]) -> tuple[np.ndarray, np.ndarray | None]:
+        """(4, 4) motion from frame ``previous`` to ``current`` (each ``(index, timestamp)``)
+        and its (6, 6) information when the file gives one.
+
+        :raises DataError: the file has nothing for these frames.
+        """
+        if self.relative is not None:
+            found = self.relative.get((previous[0], current[0]))
+            if found is None:
+                raise DataError(f"{self.path}: no RelativePose from frame {previous[0]} to frame {current[0]}")
+            return found
+        return lie.relative(self._pose(*previous), self._pose(*current)), None
+
+    def _pose(self, index: int, stamp: float) -> np.ndarray:
+        if self.by_index is not None:
+            if index not in self.by_index:
+                raise DataError(f"{self.path}: no pose for frame {index}")
+            return self.by_index[index]
+        assert self.stamps is not None and self.stamped is not None
+        nearest = int(np.argmin(np.abs(self.stamps - stamp)))
+        if abs(self.stamps[nearest] - stamp) > self.max_time_difference:
+            raise DataError(
+                f"{self.path}: no pose within {self.max_time_difference} s of frame {index} (t = {stamp:.3f} s)"
+            )
+        return self.stamped[nearest]
+
+
+def _spatial(poses: np.ndarray) -> np.ndarray:
+    return lie.planar_to_spatial(poses) if lie.dimension_of(poses) == 2 else poses
+
+
+def read_odometry(path: Path) -> OdometryTable:
+    """Odometry for a run from a trajectory file (TUM, ``x y theta``, KITTI), a graph
+    file (its composed poses, vertex id = frame index) or a run log (RelativePose messages).
+    """
+    path = Path(path)
+    if path.suffix == ".mcap":
+        summary = summarize(path)
+        topics = [t.topic for t in summary.topics if t.schema_name == RelativePose.schema_name]
+        if not topics:
+            raise DataError(f"{path}: the log has no {RelativePose.schema_name} messages to take odometry from")
+        relative = {}
+        for logged in read_messages(path, topics=topics, strict=summary.complete):
+            message = logged.decoded
+            relative[(message.frame_from, message.frame_to)] = (message.transform, message.information)
+        return OdometryTable(path, relative=relative)
+    lines = read_lines(path)
+    try:
+        if _is_graph_text(lines):
+            graph = parse_graph(lines, str(path)).graph
+            poses = _spatial(compose_initial_poses(graph))
+            return OdometryTable(path, by_index=dict(zip(graph.ids.tolist(), poses)))
+        trajectory = parse_trajectory(lines, str(path))
+    except CoreError as exc:
+        raise DataError(str(exc)) from None
+    poses = _spatial(trajectory.poses)
+    if trajectory.format == "tum":
+        return OdometryTable(path, stamps=trajectory.stamps, stamped=poses)
+    return OdometryTable(path, by_index=dict(enumerate(poses)))

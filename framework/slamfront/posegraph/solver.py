@@ -195,7 +195,8 @@ def _between(dim: int) -> Callable[..., Any]:
     return gtsam.BetweenFactorPose2 if dim == 2 else gtsam.BetweenFactorPose3
 
 
-def _prior(dim: int, key: int, pose: np.ndarray) -> Any:
+def prior_factor(dim: int, key: int, pose: np.ndarray) -> Any:
+    """The gauge prior holding vertex ``key`` at ``pose``."""
     sigmas = np.full(3 if dim == 2 else 6, _PRIOR_SIGMA)
     factor = gtsam.PriorFactorPose2 if dim == 2 else gtsam.PriorFactorPose3
     return factor(key, to_gtsam_pose(pose), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
@@ -250,8 +251,18 @@ def build_factor_graph(
     ):
         factor_graph.add(factor)
     for key, pose in anchors.items():
-        factor_graph.add(_prior(graph.dim, key, pose))
+        factor_graph.add(prior_factor(graph.dim, key, pose))
     return factor_graph, FactorLayout(graph.n_edges, len(anchors))
+
+
+def objective(graph: PoseGraph, poses: np.ndarray, options: SolverOptions | None = None) -> float:
+    """Half the sum of squared whitened residuals of ``graph``'s edges at ``poses``,
+    through the kernel of ``options`` (none when None; GNC counts as none)."""
+    if options is None or options.kernel == "gnc":
+        factor_graph, _ = build_factor_graph(graph, {}, "none", 0.0, np.zeros(graph.n_edges, dtype=bool))
+    else:
+        factor_graph, _ = build_factor_graph(graph, {}, options.kernel, options.parameter(), robust_mask(graph, options))
+    return float(factor_graph.error(to_values(graph.ids, poses)))
 
 
 # --- optimisation ---------------------------------------------------------------------
@@ -448,7 +459,7 @@ def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationRes
             guess = session.pose(int(graph.ids[parent])) @ relative
         new_factors = [full.at(e) for e in by_step[when]]
         if key in anchors:
-            new_factors.append(_prior(graph.dim, key, anchors[key]))
+            new_factors.append(prior_factor(graph.dim, key, anchors[key]))
         session.update(new_factors, {key: guess})
     cost = float(full.error(session.isam.calculateEstimate()))
     converged = options.isam2_final_updates == 0

@@ -1,0 +1,76 @@
+"""Back-end evaluation: ATE of the trajectory before and after pose-graph optimisation,
+loop closures the back end added (and how many of them were true), and a plot."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamfront.core.alignment import ate_rmse
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
+from slamfront.posegraph import report
+
+
+class BackendEvaluation(Evaluation):
+    """Scores the back end's ``odometry`` and ``optimised`` trajectories against the
+    source's ground-truth poses (ATE after a rigid alignment)."""
+
+    title = "Pose-graph back end"
+    labels = ("odometry", "optimised")
+
+    def __init__(self) -> None:
+        self._truth: dict[int, np.ndarray] = {}
+        self._trajectories: dict[str, Trajectory] = {}
+        self._graph: PoseGraphState | None = None
+        self._constraints: list[LoopConstraint] = []
+
+    def observe(self, kind: str, message: Message) -> None:
+        if isinstance(message, FrameInfo) and message.pose is not None:
+            self._truth[message.frame] = message.pose[:3, 3].copy()
+        elif isinstance(message, Trajectory) and message.label in self.labels:
+            self._trajectories[message.label] = message
+        elif isinstance(message, PoseGraphState):
+            self._graph = message
+        elif isinstance(message, LoopConstraint):
+            self._constraints.append(message)
+
+    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
+        if not self._trajectories:
+            return EvaluationReport(self.title, markdown="The back end produced no trajectory.\n")
+        added = [c for c in self._constraints if c.added]
+        metrics: dict[str, float | int | None] = {
+            "n_loop_constraints_added": len(added),
+            "n_loop_constraints_skipped": len(self._constraints) - len(added),
+        }
+        truth = context.source.loop_ground_truth()
+        if truth is not None and added:
+            frames = np.array([c.frame for c in added], dtype=np.int64)
+            known = np.isin(frames, truth.queries)
+            correct = truth.is_correct(frames[known], np.array([c.match for c in added], dtype=np.int64)[known])
+            metrics["n_loop_constraints_added_false"] = int(len(correct) - correct.sum())
+        estimate = self._trajectories.get("optimised") or next(iter(self._trajectories.values()))
+        frames = estimate.frames
+        has_truth = len(frames) >= 3 and all(int(f) in self._truth for f in frames)
+        ground_truth = np.array([self._truth[int(f)] for f in frames]) if has_truth else None
+        positions = {label: t.poses[:, :3, 3] for label, t in self._trajectories.items()}
+        if ground_truth is not None and np.ptp(ground_truth, axis=0).max() > 0:
+            if "odometry" in positions:
+                metrics["ate_rmse_before_m"] = ate_rmse(positions["odometry"], ground_truth)
+            if "optimised" in positions:
+                metrics["ate_rmse_after_m"] = ate_rmse(positions["optimised"], ground_truth)
+        figures = []
+        if context.options.plots:
+            loops = None
+            if self._graph is not None:
+                mask = np.abs(self._graph.targets - self._graph.sources) != 1
+                loops = np.searchsorted(frames, np.stack([self._graph.sources[mask], self._graph.targets[mask]], 1))
+            keys = {"odometry": "ate_rmse_before_m", "optimised": "ate_rmse_after_m"}
+            titled = {
+                label + (f" (ATE {metrics[keys[label]]:.3g} m)" if keys[label] in metrics else ""): points
+                for label, points in positions.items()
+            }
+            path = report.before_after(titled, context.out_dir / "backend.png", ground_truth, loops,
+                                       title="trajectory before and after pose-graph optimisation")
+            figures.append(path.name)
+        markdown = report.metrics_table(metrics) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
