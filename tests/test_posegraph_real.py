@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import random_false_closures, subgraph
-from slamfront.posegraph.io import read_ground_truth, read_graph
+from slamfront.posegraph.io import read_graph, read_ground_truth
 from slamfront.posegraph.solver import SolverOptions, optimize
 
 GRAPHS = {

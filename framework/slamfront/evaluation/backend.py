@@ -10,6 +10,12 @@ from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationR
 from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
 from slamfront.posegraph import report
 
+_SOLVER_KEYS = (
+    "backend_mode", "backend_kernel", "n_vertices", "n_edges", "n_graph_loop_closures", "cost_before", "cost_after",
+    "iterations", "converged", "optimisation_seconds", "n_rejected_edges",
+)
+"""Back-end statistics (already in metrics.json) repeated in the report section."""
+
 
 class BackendEvaluation(Evaluation):
     """Scores the back end's ``odometry`` and ``optimised`` trajectories against the
@@ -72,5 +78,6 @@ class BackendEvaluation(Evaluation):
             path = report.before_after(titled, context.out_dir / "backend.png", ground_truth, loops,
                                        title="trajectory before and after pose-graph optimisation")
             figures.append(path.name)
-        markdown = report.metrics_table(metrics) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
+        shown = {k: context.statistics[k] for k in _SOLVER_KEYS if k in context.statistics}
+        markdown = report.metrics_table({**shown, **metrics}) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)

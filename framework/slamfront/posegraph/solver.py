@@ -118,6 +118,7 @@ class OptimizationResult:
     :ivar iterations: LM iterations (batch; for GNC those of the warm start and of a
         final LM over GNC's weights, as GTSAM's GNC does not report its own), or iSAM2
         updates.
+    :ivar seconds: wall time of building the GTSAM problem and solving it (not of reading it).
     :ivar weights: (M,) GNC's final weight per edge (1 inlier, 0 outlier), else None.
     """
 
@@ -316,22 +317,25 @@ def optimize(graph: PoseGraph, options: SolverOptions | None = None) -> Optimiza
     return _optimize_lm(graph, options)
 
 
+def _lm(name: str, factor_graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: SolverOptions) -> tuple[gtsam.Values, int]:
+    """One Levenberg-Marquardt run: the solution and its iteration count."""
+    optimizer = gtsam.LevenbergMarquardtOptimizer(factor_graph, values, _lm_params(options))
+    return _solve(name, optimizer.optimize), int(optimizer.iterations())
+
+
 def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
     initial, anchors = prepare(graph)
     started = time.perf_counter()
     factor_graph, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust_mask(graph, options))
     values = to_values(graph.ids, initial)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(factor_graph, values, _lm_params(options))
-    solution = _solve(graph.name, optimizer.optimize)
-    seconds = time.perf_counter() - started
-    iterations = int(optimizer.iterations())
+    solution, iterations = _lm(graph.name, factor_graph, values, options)
     return OptimizationResult(
         poses=poses_from_values(solution, graph.dim),
         initial=initial,
         cost_before=float(factor_graph.error(values)),
         cost_after=float(factor_graph.error(solution)),
         iterations=iterations,
-        seconds=seconds,
+        seconds=time.perf_counter() - started,
         converged=iterations < options.max_iterations,
         mode="batch",
         kernel=options.kernel,
@@ -346,9 +350,7 @@ def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResul
     start, iterations = values, 0
     if options.gnc_warm_start == "dcs":
         robust, _ = build_factor_graph(graph, anchors, "dcs", KERNELS["dcs"].default_parameter, ~graph.is_odometry())
-        warm = gtsam.LevenbergMarquardtOptimizer(robust, values, _lm_params(options))
-        start = _solve(graph.name, warm.optimize)
-        iterations += int(warm.iterations())
+        start, iterations = _lm(graph.name, robust, values, options)
     params = gtsam.GncLMParams(_lm_params(options, options.gnc_inner_iterations))
     params.setLossType(gtsam.GncLossType.TLS if options.gnc_loss == "tls" else gtsam.GncLossType.GM)
     params.setLambdaStep(options.gnc_step)
@@ -361,18 +363,15 @@ def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResul
     # A last LM over the weighted graph: GNC's answer is its optimum already, so this
     # only confirms convergence and gives an iteration count GNC itself does not report.
     weighted = _weighted_graph(plain, weights)
-    polish = gtsam.LevenbergMarquardtOptimizer(weighted, solution, _lm_params(options))
-    solution = _solve(graph.name, polish.optimize)
-    iterations += int(polish.iterations())
-    seconds = time.perf_counter() - started
+    solution, polish_iterations = _lm(graph.name, weighted, solution, options)
     return OptimizationResult(
         poses=poses_from_values(solution, graph.dim),
         initial=initial,
         cost_before=float(plain.error(values)),
         cost_after=float(weighted.error(solution)),
-        iterations=iterations,
-        seconds=seconds,
-        converged=int(polish.iterations()) < options.max_iterations,
+        iterations=iterations + polish_iterations,
+        seconds=time.perf_counter() - started,
+        converged=polish_iterations < options.max_iterations,
         mode="batch",
         kernel="gnc",
         weights=weights[: graph.n_edges],

@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import PoseGraph, random_false_closures
-from slamfront.posegraph.io import read_ground_truth, read_graph, write_text
+from slamfront.posegraph.io import read_graph, read_ground_truth, write_text
 from slamfront.posegraph.solver import SolverOptions, objective, optimize
 from slamfront.report.plots import _pyplot
 

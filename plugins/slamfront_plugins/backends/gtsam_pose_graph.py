@@ -30,8 +30,8 @@ from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig
 class Sigmas(PluginConfig):
     """Standard deviations of a relative pose, per axis."""
 
-    translation_m: float = Field(description="translation standard deviation, metres", ge=0)
-    rotation_deg: float = Field(description="rotation standard deviation, degrees", ge=0)
+    translation_m: float = Field(0.05, ge=0, description="translation standard deviation, metres")
+    rotation_deg: float = Field(1.0, ge=0, description="rotation standard deviation, degrees")
 
     def information(self) -> np.ndarray:
         """(6, 6) diagonal information, translation first; zero sigmas are floored (1 mm, 0.01 deg)."""
