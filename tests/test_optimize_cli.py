@@ -131,6 +131,7 @@ BAD_GRAPHS = {
     ),
     "unknown record": ("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_FOO 1 2\n", "bad.g2o:2: unknown record 'EDGE_FOO'"),
     "empty": ("", "bad.g2o: no edges found"),
+    "negative id": ("EDGE_SE2 -1 0 1 0 0 1 0 0 1 0 1\n", "bad.g2o: vertex ids must be non-negative, got -1"),
 }
 
 
