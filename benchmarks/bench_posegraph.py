@@ -26,6 +26,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import publish, table  # noqa: E402
+
 from slamfront.core.alignment import ate_rmse  # noqa: E402
 from slamfront.data import data_root  # noqa: E402
 from slamfront.posegraph.io import read_graph, read_ground_truth  # noqa: E402

@@ -15,6 +15,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import best_of, publish, table  # noqa: E402
+
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402
 from slamfront.runtime import run_pipeline  # noqa: E402
 from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402

@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 import yaml
+
 from slamfront.cli import main
 from slamfront.data import data_root
 

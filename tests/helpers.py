@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
+
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+
+from slamfront.mcaplog.reader import read_messages
+from slamfront.mcaplog.scan import RecordScanner
+from slamfront.mcaplog.writer import RunLogWriter
 
 
 def small_synthetic_recipe(**source_params: Any) -> dict[str, Any]:
@@ -16,3 +24,41 @@ def small_synthetic_recipe(**source_params: Any) -> dict[str, Any]:
         "loop_detector": {"plugin": "nearest_neighbour", "params": {}},
         "eval": {"plots": False},
     }
+
+
+def rewrite_log(
+    source: Path, target: Path, change: Callable[[str, int, bytes], bytes | None] = lambda _t, _i, data: data
+) -> None:
+    """Copy a log record by record; ``change(topic, index in topic, data)`` may alter a
+    message (return new bytes) or drop it (return None). Metadata and attachments are kept."""
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    counts: dict[str, int] = {}
+    with open(source, "rb") as stream, RunLogWriter(target, chunk_size=1 << 16) as log:
+        for record in RecordScanner(stream, source.stat().st_size).records():
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                schema = schemas[channel.schema_id]
+                index = counts.get(channel.topic, 0)
+                counts[channel.topic] = index + 1
+                data = change(channel.topic, index, bytes(record.data))
+                if data is not None:
+                    log.write_raw(channel.topic, schema.name, schema.encoding, bytes(schema.data),
+                                  channel.message_encoding, data, record.log_time, record.publish_time)
+            elif isinstance(record, Metadata):
+                log.add_metadata(record.name, dict(record.metadata))
+            elif isinstance(record, Attachment):
+                log.add_attachment(record.name, record.media_type, bytes(record.data), record.log_time)
+
+
+def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:
+    """Every message's bytes on the topics starting with ``prefix``, by topic."""
+    topics: dict[str, list[bytes]] = {}
+    for message in read_messages(path):
+        if message.topic.startswith(prefix):
+            topics.setdefault(message.topic, []).append(message.data)
+    return topics

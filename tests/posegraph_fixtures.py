@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from slamfront.core import lie
 from slamfront.core.graph_files import format_g2o
 from slamfront.core.posegraph import PoseGraph, make_graph

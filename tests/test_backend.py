@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront import Camera, DataError, Frame, PluginError, StageInputs
 from slamfront.core import lie
 from slamfront.core.alignment import ate_rmse
@@ -20,7 +21,6 @@ from slamfront.runtime import run_pipeline
 from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
 from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, orb_features, verify
 from slamfront_plugins.sources.synthetic import SyntheticWorld
-
 from tests.posegraph_fixtures import ring_truth
 
 # --- PnP verification -------------------------------------------------------------------

@@ -8,8 +8,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from slamfront.mcaplog.reader import read_messages, summarize
 
+from slamfront.mcaplog.reader import read_messages, summarize
 from tests.helpers import small_synthetic_recipe
 
 
@@ -23,7 +23,7 @@ def _one_line_error(code: int, err: str) -> str:
 
 
 def test_help_everywhere(cli) -> None:
-    for command in ([], ["run"], ["plugins"], ["inspect"], ["recipes"]):
+    for command in ([], ["run"], ["replay"], ["plugins"], ["inspect"], ["diff"], ["recover"], ["recipes"]):
         with pytest.raises(SystemExit) as exit_info:
             cli(*command, "--help")
         assert exit_info.value.code == 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core.alignment import ate_rmse, transform_points, umeyama
 from slamfront.core.errors import CoreError
 

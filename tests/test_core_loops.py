@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from slamfront.core.errors import CoreError
 from slamfront.core.loops import LoopGroundTruth, precision_recall, recall_at_k
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
 from slamfront.core import lie
 from slamfront.core.errors import CoreError
 from slamfront.core.graph_files import format_g2o, format_tum, parse_graph, parse_trajectory

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+
 from slamfront.messages import Features, FrameInfo, LoopResult, RunMetrics, decode_any, message_class
 
 

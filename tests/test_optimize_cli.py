@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront.core import lie
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.graph_files import format_g2o, format_tum, parse_graph, parse_trajectory
 from slamfront.core.posegraph import random_false_closures
 from slamfront.posegraph.solver import SolverOptions, optimize
-
 from tests.posegraph_fixtures import ring_g2o, ring_graph, ring_truth
 from tests.test_cli import _one_line_error
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 import pytest
+
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import random_false_closures, subgraph
 from slamfront.posegraph.io import read_graph, read_ground_truth

@@ -5,10 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from slamfront.data import data_root
 from slamfront.errors import PluginError, RecipeError
 from slamfront.recipe import apply_overrides, build_pipeline, load_recipe, parse_recipe, recipes_dir
-
 from tests.helpers import small_synthetic_recipe
 
 

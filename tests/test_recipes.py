@@ -1,11 +1,14 @@
-"""Every shipped recipe validates and runs on its first few frames."""
+"""Every shipped recipe validates, runs on its first few frames, and writes a log whose
+every topic has a Foxglove or registered slamfront schema and every message decodes."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+
 from slamfront.mcaplog.reader import summarize
+from slamfront.mcaplog.validate import validate_log
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline
 
@@ -23,6 +26,8 @@ def test_recipe_validates_and_smoke_runs(path: Path, tmp_path: Path, shared_data
     pipeline = build_pipeline(recipe, str(path))
     result = run_pipeline(pipeline, str(path), tmp_path, progress=False, max_frames=12)
     assert summarize(result.log_path).complete
+    validation = validate_log(result.log_path)
+    assert validation.valid, validation.problems
     for kind in pipeline.plugins:
         if kind != "source":
             assert kind in result.metrics["timing"]

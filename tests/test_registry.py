@@ -6,6 +6,7 @@ import json
 import types
 
 import pytest
+
 import slamfront
 from slamfront.errors import PluginError
 from slamfront.plugin import KINDS

@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from slamfront.mcaplog.reader import read_attachment, read_messages, summarize
 from slamfront.messages import Features, FrameInfo, LoopResult
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.sources.synthetic import SyntheticWorld
-
 from tests.helpers import small_synthetic_recipe
 
 CONTRACT_KEYS = {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 from slamfront_plugins.sources.synthetic_world import Route
 

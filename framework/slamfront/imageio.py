@@ -6,6 +6,7 @@ always ends the same way: a :class:`~slamfront.errors.DataError` naming the file
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
@@ -59,14 +60,21 @@ def read_depth(path: Path, scale: float, shape: Sequence[int] | None = None) -> 
     return (raw.astype(np.float32) / np.float32(scale)).astype(np.float32)
 
 
+def natural_key(path: Path) -> list[object]:
+    """Sort key that orders ``2.png`` before ``10.png`` (numbers compared as numbers)."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", Path(path).name)]
+
+
 def list_images(folder: Path, pattern: str = "*") -> list[Path]:
-    """Image files in ``folder`` matching ``pattern``, sorted by name.
+    """Image files in ``folder`` matching ``pattern``, in natural name order (2 before 10).
 
     :raises DataError: the folder is missing or holds no images.
     """
     if not folder.is_dir():
         raise DataError(f"{folder}: no such image folder")
-    files = sorted(p for p in folder.glob(pattern) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+    files = sorted(
+        (p for p in folder.glob(pattern) if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()), key=natural_key
+    )
     if not files:
         raise DataError(f"{folder}: no images matching {pattern!r}")
     return files

@@ -293,6 +293,47 @@ class RunMetrics(Message):
     values: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class StageStatistics(Message):
+    """A stage's :meth:`~slamfront.plugin.Stage.statistics` at the end of the run.
+
+    Logged on ``/<kind>/stage_statistics`` so a replay that reads this stage from the
+    log reports the same counters without running it.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.StageStatistics"
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class RunEvent(Message):
+    """A step of the run itself, so a reader can tell the phases apart.
+
+    ``event`` is ``"finish"`` just before the stages' ``finish()`` is called: stage
+    messages after it were produced at the end of the run, not for the last frame.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.RunEvent"
+    event: str
+    n_frames: int
+
+
+@dataclass(frozen=True, eq=False)
+class LoopTruth(Message):
+    """The source's loop ground truth (``LoopGroundTruth`` in compressed-row form).
+
+    Logged once at the end of a run, so evaluating a replay needs only the log.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.LoopTruth"
+    queries: np.ndarray
+    """(Q,) int64 query frame indices, sorted."""
+    indptr: np.ndarray
+    """(Q + 1,) int64 row offsets into ``matches``."""
+    matches: np.ndarray
+    """(M,) int64 correct matches of each query, by row."""
+
+
 # --- geometry and the back end --------------------------------------------------------
 
 
@@ -407,4 +448,8 @@ class PoseGraphState(Message):
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         from slamfront.mcaplog import foxglove
 
-        return [("loop_closures", foxglove.scene_lines(self.loop_segments(), stamp_ns, "loop_closures"))]
+        segments = self.loop_segments()
+        if self.dim == 2:  # Foxglove draws in 3-D: planar graphs at z = 0
+            segments = np.concatenate([segments, np.zeros((*segments.shape[:2], 1))], axis=-1)
+        entity = foxglove.line_entity("loop_closures", segments, stamp_ns, (0.9, 0.1, 0.1, 1.0), strip=False)
+        return [("loop_closures", foxglove.scene_update([entity]))]

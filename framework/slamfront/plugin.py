@@ -18,11 +18,13 @@ from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict
 
+from slamfront.errors import PluginError
 from slamfront.frame import Frame
-from slamfront.messages import Message
+from slamfront.messages import Features, Message
 
 if TYPE_CHECKING:
     from slamfront.core.loops import LoopGroundTruth
+    from slamfront.datasets import DatasetDownload
 
 Kind = Literal[
     "source", "descriptor", "place_map", "loop_detector", "localizer", "registration", "backend"
@@ -80,6 +82,8 @@ class Source(Plugin):
     """Yields frames. Sources are the only plugins that read data."""
 
     kind: ClassVar[Kind] = "source"
+    downloads: ClassVar[tuple[DatasetDownload, ...]] = ()
+    """Public datasets this source reads, for ``slamfront datasets download``."""
 
     def frames(self) -> Iterator[Frame]:
         """Yield the run's frames in order, lazily, with ``index`` counting from 0."""
@@ -91,6 +95,14 @@ class Source(Plugin):
 
     def loop_ground_truth(self) -> LoopGroundTruth | None:
         """Which reported matches count as correct, for loop-detection evaluation."""
+        return None
+
+    def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
+        """The same ground truth with another tolerance zeta (frames either side).
+
+        Lets one run be scored at several tolerances (``eval.tolerances``). None: this
+        source has no tolerance to change.
+        """
         return None
 
 
@@ -119,11 +131,38 @@ class StageInputs:
         raise KeyError(f"stage {kind!r} produced no {message_type.__name__} for frame {self.frame.index}")
 
 
+def require_global_descriptor(stages: Mapping[str, Plugin]) -> None:
+    """For ``check()``: refuse a recipe whose descriptor produces no global vector.
+
+    :raises PluginError: naming the descriptor.
+    """
+    descriptor = stages.get("descriptor")
+    if descriptor is None or not getattr(descriptor, "produces_global", False):
+        name = descriptor.name if descriptor is not None else "none"
+        raise PluginError(f"needs a global descriptor; {name!r} produces none")
+
+
+def global_features(inputs: StageInputs) -> Features:
+    """The descriptor's ``Features`` for this frame, which must carry a global ``vector``.
+
+    :raises PluginError: the descriptor gave no global vector.
+    """
+    features: Features = inputs.one("descriptor", Features)
+    if features.vector is None:
+        raise PluginError(f"descriptor gave no global vector for frame {features.frame}")
+    return features
+
+
 class Stage(Plugin):
     """A processing stage: called once per frame, then once at the end of the run."""
 
     requires: ClassVar[tuple[Kind, ...]] = ()
     """Stage kinds that must run before this one (checked when the recipe is loaded)."""
+
+    reads_pixels: ClassVar[bool] = False
+    """Whether :meth:`process` reads ``frame.image`` or ``frame.depth``. A replay
+    (``slamfront replay``) re-runs such a stage only from a log that stores them exactly
+    (``log.image_format: png`` at full width, depth as ``32FC1``)."""
 
     def process(self, inputs: StageInputs) -> Sequence[Message]:
         """Process one frame; return this stage's outputs (possibly about earlier frames)."""
@@ -142,6 +181,7 @@ class Descriptor(Stage):
     """Frame -> global vector and/or local keypoints with descriptors (``Features``)."""
 
     kind: ClassVar[Kind] = "descriptor"
+    reads_pixels: ClassVar[bool] = True
     produces_global: ClassVar[bool] = False
     produces_local: ClassVar[bool] = False
 
@@ -163,12 +203,14 @@ class Localizer(Stage):
     """Frame -> pose or node in a keyframe map."""
 
     kind: ClassVar[Kind] = "localizer"
+    reads_pixels: ClassVar[bool] = True
 
 
 class Registration(Stage):
     """Point clouds -> relative transforms and a global model."""
 
     kind: ClassVar[Kind] = "registration"
+    reads_pixels: ClassVar[bool] = True
 
 
 class Backend(Stage):

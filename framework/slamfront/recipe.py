@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from slamfront.data import checkout_root, data_root
 from slamfront.errors import PluginError, RecipeError
-from slamfront.plugin import STAGE_KINDS, Kind, Plugin, Source, Stage
+from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 
 
@@ -40,9 +40,19 @@ class LogOptions(_Strict):
     image_max_width: int = Field(320, ge=16, description="downscale logged images to this width")
     image_format: Literal["jpeg", "png"] = Field("jpeg", description="png is lossless")
     jpeg_quality: int = Field(80, ge=1, le=100)
-    depth: bool = Field(False, description="log depth images (foxglove.RawImage, 16-bit mm)")
+    depth: bool = Field(False, description="log depth images (foxglove.RawImage)")
+    depth_encoding: Literal["16UC1", "32FC1"] = Field(
+        "16UC1", description="16UC1: millimetres (compact); 32FC1: float32 metres, exact (replayable)"
+    )
+    points: bool = Field(False, description="log each depth frame as a foxglove.PointCloud in the camera frame")
+    points_stride: int = Field(4, ge=1, description="point clouds use every n-th pixel in each direction")
+    scene: bool = Field(True, description="log the path and loop closures for Foxglove's 3-D panel (/scene/map)")
+    scene_every: int = Field(20, ge=1, description="update /scene/map every this many frames")
     compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+    sync_seconds: float | None = Field(
+        5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
+    )
 
 
 class EvalOptions(_Strict):
@@ -50,6 +60,15 @@ class EvalOptions(_Strict):
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
     recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[int] = Field(
+        default_factory=list,
+        description="also score loops at these tolerances (zeta), for sources that support it; "
+        "metrics get the suffix _zeta<t>",
+    )
+    retrieval_max_k: int = Field(
+        20, ge=0, description="descriptor retrieval: recall when a correct reference is among the psi "
+        "nearest, psi = 1..this (seed 000 figs 4.1/4.2); 0 turns it off",
+    )
 
 
 class Recipe(_Strict):
@@ -88,23 +107,28 @@ def recipes_dir() -> Path:
     return checkout_root() / "recipes"
 
 
-def find_recipe(name_or_path: str | Path) -> Path:
-    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
+    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = recipes_dir() / f"{name_or_path}.yaml"
+    shipped = folder / f"{name_or_path}.yaml"
     if path.suffix == "" and shipped.exists():
         return shipped
-    raise RecipeError(f"{name_or_path}: no such recipe file (shipped recipes: `slamfront recipes`)")
+    raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
-def read_recipe_dict(path: Path) -> dict[str, Any]:
-    """Parse a recipe file to a dict, with the file named in any error."""
+def find_recipe(name_or_path: str | Path) -> Path:
+    """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
+    return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
+
+
+def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
+    """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
     try:
         text = path.read_text()
     except OSError as exc:
-        raise RecipeError(f"{path}: cannot read recipe: {exc.strerror or exc}") from exc
+        raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
     try:
         raw = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -112,9 +136,14 @@ def read_recipe_dict(path: Path) -> dict[str, Any]:
         where = f":{mark.line + 1}" if mark is not None else ""
         raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
     if not isinstance(raw, dict):
-        raise RecipeError(f"{path}: a recipe must be a YAML mapping, got {type(raw).__name__}")
+        raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
     raw.setdefault("name", path.stem)
     return raw
+
+
+def read_recipe_dict(path: Path) -> dict[str, Any]:
+    """Parse a recipe file to a dict, with the file named in any error."""
+    return read_yaml_mapping(path, "recipe")
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
@@ -196,21 +225,20 @@ class Pipeline:
         return [self.plugins[k] for k in STAGE_KINDS if k in self.plugins]  # type: ignore[misc]
 
 
-def build_pipeline(
-    recipe: Recipe, origin: str, registry: PluginRegistry | None = None, data: Path | None = None
-) -> Pipeline:
-    """Construct every plugin of ``recipe`` from its validated params and check them.
+def validate_stage_params(
+    recipe: Recipe, origin: str, registry: PluginRegistry, data: Path | None = None
+) -> dict[Kind, tuple[type[Plugin], PluginConfig]]:
+    """Find every stage's plugin class and validate its params, constructing nothing.
 
-    :param origin: the recipe's file name, for messages.
-    :param data: data root for relative paths (default :func:`slamfront.data.data_root`).
+    Cheap enough to check many recipes up front (a campaign does, before its first run).
+
     :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
-    :raises PluginError: a plugin is unknown or incompatible with another.
+    :raises PluginError: a plugin is unknown or a plugin module cannot be imported.
     """
-    registry = registry or PluginRegistry()
     for module in recipe.plugin_modules:
         registry.register_module(module)
     context = {"data_root": data or data_root()}
-    plugins: dict[Kind, Plugin] = {}
+    configs: dict[Kind, tuple[type[Plugin], PluginConfig]] = {}
     for kind, spec in recipe.stage_specs().items():
         try:
             info = registry.get(kind, spec.plugin)
@@ -220,7 +248,32 @@ def build_pipeline(
             config = info.cls.Config.model_validate(spec.params, context=context)
         except ValidationError as exc:
             raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
-        plugins[kind] = info.cls(config)
+        configs[kind] = (info.cls, config)
+    return configs
+
+
+def build_pipeline(
+    recipe: Recipe,
+    origin: str,
+    registry: PluginRegistry | None = None,
+    data: Path | None = None,
+    source: Source | None = None,
+) -> Pipeline:
+    """Construct every plugin of ``recipe`` from its validated params and check them.
+
+    :param origin: the recipe's file name, for messages.
+    :param data: data root for relative paths (default :func:`slamfront.data.data_root`).
+    :param source: use this source instead of constructing ``recipe.source`` (a replay
+        reads its frames from a log).
+    :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
+    :raises PluginError: a plugin is unknown or incompatible with another.
+    """
+    registry = registry or PluginRegistry()
+    configs = validate_stage_params(recipe, origin, registry, data)
+    plugins: dict[Kind, Plugin] = {
+        kind: source if kind == "source" and source is not None else cls(config)
+        for kind, (cls, config) in configs.items()
+    }
     for kind, plugin in plugins.items():
         missing = [need for need in getattr(plugin, "requires", ()) if need not in plugins]
         if missing:

@@ -1,25 +1,27 @@
 """Running a recipe: stream frames through the stages, log everything, evaluate, report.
 
-Frames are pulled from the source one at a time and dropped after the last stage has
-seen them, so memory stays flat in the number of frames except for what a stage keeps
-on purpose (a map) and the small per-query results evaluation needs.
+Frames are pulled from a feed (:mod:`slamfront.feeds`: a live source, or a log being
+replayed) one at a time and dropped after the last stage has seen them, so memory stays
+flat in the number of frames except for what a stage keeps on purpose (a map) and the
+small per-query results evaluation needs. In a replay, the stages before ``--from`` are
+not run: the messages they logged in the original run are copied to the new log and
+handed to the later stages exactly as the stages themselves would have.
 
 The log is finalised whatever happens: normal end, a user error in the data, an
-exception in a plugin, Ctrl-C or SIGTERM. Its last ``/log`` line says how the run ended.
+exception in a plugin, Ctrl-C or SIGTERM (which are held back while a record is being
+written, :mod:`slamfront.interrupts`). Its last ``/log`` line says how the run ended.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import platform
-import re
-import signal
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -27,34 +29,36 @@ from tqdm import tqdm
 
 import slamfront
 from slamfront.errors import SlamfrontError
-from slamfront.evaluation import EvaluationContext, evaluations_for
-from slamfront.frame import Frame
+from slamfront.evaluation import EvaluationContext, EvaluationReport, evaluations_for
+from slamfront.feeds import FrameFeed, SourceFeed
+from slamfront.interrupts import Interrupts, RunInterrupted
 from slamfront.mcaplog import foxglove
+from slamfront.mcaplog.reader import LoggedMessage
+from slamfront.mcaplog.scene import SceneLogger
+from slamfront.mcaplog.topics import (
+    CALIBRATION_TOPIC,
+    DEPTH_TOPIC,
+    EVENTS_TOPIC,
+    FRAMES_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    IMAGE_TOPIC,
+    LOG_TOPIC,
+    LOOP_TRUTH_TOPIC,
+    METRICS_TOPIC,
+    TF_TOPIC,
+    statistics_topic,
+    topic_for,
+)
 from slamfront.mcaplog.writer import RunLogWriter
-from slamfront.messages import FrameInfo, Message, RunMetrics
+from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.plugin import Stage, StageInputs
-from slamfront.recipe import LogOptions, Pipeline
+from slamfront.recipe import Pipeline
 from slamfront.report.markdown import write_report
 
-FRAMES_TOPIC = "/frames"
-IMAGE_TOPIC = "/camera/image"
-DEPTH_TOPIC = "/camera/depth"
-CALIBRATION_TOPIC = "/camera/calibration"
-GROUND_TRUTH_TOPIC = "/ground_truth/pose"
-TF_TOPIC = "/tf"
-LOG_TOPIC = "/log"
-METRICS_TOPIC = "/metrics"
-
-
-class RunInterrupted(KeyboardInterrupt):
-    """The run was stopped by SIGINT or SIGTERM."""
-
-
-def topic_for(kind: str, message: Message) -> str:
-    """``/<stage kind>/<message type in snake_case>``, e.g. ``/loop_detector/loop_result``."""
-    snake = re.sub(r"(?<!^)(?=[A-Z])", "_", type(message).__name__).lower()
-    return f"/{kind}/{snake}"
-
+__all__ = [
+    "CALIBRATION_TOPIC", "DEPTH_TOPIC", "FRAMES_TOPIC", "GROUND_TRUTH_TOPIC", "IMAGE_TOPIC", "LOG_TOPIC",
+    "METRICS_TOPIC", "TF_TOPIC", "RunInterrupted", "RunResult", "execute_run", "run_pipeline", "topic_for",
+]
 
 @dataclass
 class RunResult:
@@ -91,83 +95,26 @@ class StageTimer:
         return table
 
 
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into :class:`RunInterrupted` so the log is finalised (main thread only)."""
+class LogClock:
+    """Wall time spent writing the log (encoding images, serialising, compressing, syncing)."""
 
-    def handler(signum: int, _frame: Any) -> None:
-        raise RunInterrupted(f"signal {signal.Signals(signum).name}")
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self._tick = 0.0
 
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    def __enter__(self) -> LogClock:
+        self._tick = time.perf_counter()
+        return self
 
-
-def _source_length(pipeline: Pipeline) -> int | None:
-    try:
-        return len(pipeline.source)
-    except (NotImplementedError, TypeError):
-        return None
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.seconds += time.perf_counter() - self._tick
 
 
-class FrameLogger:
-    """Writes what the source gave for a frame: its info, image, depth and pose."""
-
-    def __init__(self, log: RunLogWriter, options: LogOptions) -> None:
-        self.log = log
-        self.options = options
-
-    def write(self, frame: Frame) -> FrameInfo:
-        stamp = frame.timestamp_ns
-        info = FrameInfo(
-            frame=frame.index,
-            timestamp=frame.timestamp,
-            traversal=frame.traversal,
-            sequence_index=frame.sequence_index,
-            name=frame.name,
-            width=int(frame.image.shape[1]),
-            height=int(frame.image.shape[0]),
-            has_depth=frame.depth is not None,
-            pose=None if frame.pose is None else np.asarray(frame.pose, dtype=np.float64),
-        )
-        self.log.write(FRAMES_TOPIC, info, stamp)
-        if self.options.images:
-            self.log.write_foxglove(
-                IMAGE_TOPIC,
-                foxglove.compressed_image(
-                    frame.image, stamp, self.options.image_max_width, self.options.image_format,
-                    self.options.jpeg_quality,
-                ),
-                stamp,
-            )
-        if self.options.depth and frame.depth is not None:
-            self.log.write_foxglove(DEPTH_TOPIC, foxglove.depth_image(frame.depth, stamp), stamp)
-        if frame.camera is not None:
-            self.log.write_foxglove(CALIBRATION_TOPIC, foxglove.camera_calibration(frame.camera, stamp), stamp)
-        if frame.pose is not None:
-            self.log.write_foxglove(GROUND_TRUTH_TOPIC, foxglove.pose_in_frame(frame.pose, stamp), stamp)
-            self.log.write_foxglove(TF_TOPIC, foxglove.frame_transforms(frame.pose, stamp), stamp)
-        return info
-
-
-def _write_stage_outputs(
-    log: RunLogWriter, kind: str, messages: Sequence[Message], stamp: int, observers: Sequence[Any]
+def _record_provenance(
+    log: RunLogWriter, pipeline: Pipeline, origin: str, extra: dict[str, dict[str, str]]
 ) -> None:
-    for message in messages:
-        log.write(topic_for(kind, message), message, stamp)
-        for suffix, extra in message.foxglove(stamp):
-            log.write_foxglove(f"/{kind}/{suffix}", extra, stamp)
-        for observer in observers:
-            observer.observe(kind, message)
-
-
-def _record_provenance(log: RunLogWriter, pipeline: Pipeline, origin: str) -> None:
     recipe = pipeline.recipe
     log.add_metadata(
         "slamfront",
@@ -180,11 +127,62 @@ def _record_provenance(log: RunLogWriter, pipeline: Pipeline, origin: str) -> No
     )
     plugins = {}
     for kind, plugin in pipeline.plugins.items():
-        info = pipeline.registry.get(kind, plugin.name)
-        plugins[kind] = f"{plugin.name}=={plugin.version} ({info.distribution} {info.distribution_version})"
+        described = getattr(plugin, "provenance", None)  # a replay's source says where it read from
+        if described is None:
+            info = pipeline.registry.get(kind, plugin.name)
+            described = f"{plugin.name}=={plugin.version} ({info.distribution} {info.distribution_version})"
+        plugins[kind] = described
         log.add_metadata(f"params.{kind}", {"plugin": plugin.name, "params": plugin.config.model_dump_json()})
     log.add_metadata("plugins", plugins)
+    for name, values in extra.items():
+        log.add_metadata(name, values)
     log.add_attachment("recipe.yaml", "application/yaml", recipe.to_yaml().encode())
+
+
+class _Observers:
+    """Everything that watches the run's messages: evaluations and the 3-D scene."""
+
+    def __init__(self, watchers: Sequence[Any]) -> None:
+        self.watchers = list(watchers)
+
+    def observe(self, kind: str, message: Message) -> None:
+        for watcher in self.watchers:
+            watcher.observe(kind, message)
+
+
+def _write_stage_outputs(
+    log: RunLogWriter, kind: str, messages: Sequence[Message], stamp: int, observers: _Observers
+) -> None:
+    for message in messages:
+        log.write(topic_for(kind, message), message, stamp)
+        for suffix, extra in message.foxglove(stamp):
+            log.write_foxglove(f"/{kind}/{suffix}", extra, stamp)
+        observers.observe(kind, message)
+
+
+def _copy_recorded(
+    log: RunLogWriter, kind: str, recorded: Iterable[LoggedMessage], observers: _Observers
+) -> list[Message]:
+    """Copy a recorded stage's messages unchanged; return its outputs (the JSON ones)."""
+    outputs = []
+    for logged in recorded:
+        log.copy(logged)
+        if logged.message_encoding == "json":
+            message = logged.decoded
+            outputs.append(message)
+            observers.observe(kind, message)
+    return outputs
+
+
+def _log_loop_truth(log: RunLogWriter, feed: FrameFeed, stamp: int) -> str:
+    """Log the source's loop ground truth so a replay can be evaluated from the log alone."""
+    try:
+        truth = feed.loop_ground_truth()
+    except Exception as exc:  # noqa: BLE001 (best effort while the run is ending, maybe after a failure)
+        return f"; loop ground truth not logged ({type(exc).__name__}: {exc})"
+    if truth is not None:
+        log.write(LOOP_TRUTH_TOPIC, LoopTruth(queries=truth.queries, indptr=truth.indptr, matches=truth.matches), stamp)
+    return ""
 
 
 def run_pipeline(
@@ -203,20 +201,48 @@ def run_pipeline(
         scores only the queries that were reached.
     :raises SlamfrontError: bad data met mid-run (the log is finalised first).
     """
+    feed = SourceFeed(pipeline.source, pipeline.recipe.log)
+    return execute_run(pipeline, feed, origin, out_dir, progress, max_frames)
+
+
+def execute_run(
+    pipeline: Pipeline,
+    feed: FrameFeed,
+    origin: str,
+    out_dir: Path,
+    progress: bool | None = None,
+    max_frames: int | None = None,
+    metadata: dict[str, dict[str, str]] | None = None,
+) -> RunResult:
+    """Drive ``pipeline``'s stages with the frames of ``feed``; stages of the kinds in
+    ``feed.recorded_kinds`` are not called, their logged messages are used instead.
+
+    :param metadata: extra MCAP metadata records (name -> key/values).
+    """
     recipe = pipeline.recipe
     out_dir.mkdir(parents=True, exist_ok=True)
     log_path = out_dir / "run.mcap"
     stages: list[Stage] = pipeline.stages
+    recorded = feed.recorded_kinds
     evaluations = evaluations_for(set(pipeline.plugins))
-    timer = StageTimer()
+    scene = SceneLogger(recipe.log.scene_every) if recipe.log.scene else None
+    observers = _Observers([*evaluations, *([scene] if scene else [])])
+    timer, clock = StageTimer(), LogClock()
+    statistics: dict[str, dict[str, Any]] = {}
     n_frames, last_stamp = 0, 0
     ending = ("error", "run failed before the first frame")
     started = time.perf_counter()
     library = f"slamfront {slamfront.__version__}"
-    with RunLogWriter(log_path, recipe.log.compression, recipe.log.chunk_size, library) as log:
-        _record_provenance(log, pipeline, origin)
-        frame_logger = FrameLogger(log, recipe.log)
-        total = _source_length(pipeline)
+    options = recipe.log
+    with (
+        Interrupts() as interrupts,
+        RunLogWriter(
+            log_path, options.compression, options.chunk_size, library, options.sync_seconds, interrupts.critical
+        ) as log,
+    ):
+        with clock:
+            _record_provenance(log, pipeline, origin, metadata or {})
+        total = feed.total()
         bar = tqdm(
             total=total if max_frames is None or total is None else min(total, max_frames),
             desc=recipe.name,
@@ -224,29 +250,50 @@ def run_pipeline(
             disable=None if progress is None else not progress,  # None: only on a terminal
         )
         try:
-            with _sigterm_as_interrupt():
-                for frame in pipeline.source.frames():
-                    if max_frames is not None and n_frames >= max_frames:
-                        break
-                    last_stamp = frame.timestamp_ns
-                    info = frame_logger.write(frame)
-                    for evaluation in evaluations:
-                        evaluation.observe("frames", info)
-                    inputs = StageInputs(frame=frame, outputs={}, stages={})
-                    for stage in stages:
+            for step in feed.steps():
+                if max_frames is not None and n_frames >= max_frames:
+                    break
+                frame = step.frame
+                last_stamp = frame.timestamp_ns
+                with clock:
+                    info = feed.log_frame(log, step)
+                observers.observe("frames", info)
+                inputs = StageInputs(frame=frame, outputs={}, stages={})
+                for stage in stages:
+                    if stage.kind in recorded:
+                        with clock:
+                            produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
+                    else:
                         tick = time.perf_counter()
                         produced = list(stage.process(inputs))
                         timer.add(stage.kind, time.perf_counter() - tick)
-                        _write_stage_outputs(log, stage.kind, produced, last_stamp, evaluations)
-                        inputs.outputs[stage.kind] = produced
-                        inputs.stages = {**inputs.stages, stage.kind: stage}
-                    n_frames += 1
-                    bar.update()
-                for stage in stages:
-                    tick = time.perf_counter()
-                    produced = list(stage.finish())
-                    timer.finish_seconds[stage.kind] = time.perf_counter() - tick
-                    _write_stage_outputs(log, stage.kind, produced, last_stamp, evaluations)
+                        with clock:
+                            _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                    inputs.outputs[stage.kind] = produced
+                    inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
+                n_frames += 1
+                if scene is not None:
+                    with clock:
+                        scene.after_frame(log, last_stamp)
+                bar.update()
+            with clock:
+                log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
+            recorded_finish = feed.recorded_finish()
+            for stage in stages:
+                if stage.kind in recorded:
+                    with clock:
+                        _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
+                    continue
+                tick = time.perf_counter()
+                produced = list(stage.finish())
+                timer.finish_seconds[stage.kind] = time.perf_counter() - tick
+                with clock:
+                    _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+            for stage in stages:
+                values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
+                statistics[stage.kind] = values
+                with clock:
+                    log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
             seconds = time.perf_counter() - started
             ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
         except KeyboardInterrupt as exc:
@@ -260,7 +307,11 @@ def run_pipeline(
             raise
         finally:
             bar.close()
-            log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1], last_stamp, ending[0]), last_stamp)
+            with clock:
+                if scene is not None:
+                    scene.write(log, last_stamp)
+                note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
 
         metrics: dict[str, Any] = {
             "recipe": recipe.name,
@@ -269,20 +320,55 @@ def run_pipeline(
             "n_frames": n_frames,
         }
         for stage in stages:
-            for key, value in stage.statistics().items():
+            for key, value in statistics[stage.kind].items():
                 metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
         names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
-        context = EvaluationContext(pipeline.source, out_dir, recipe.eval, dict(metrics), names)
+        context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
         sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
         for section in sections:
             metrics.update(section.metrics)
         metrics["timing"] = timer.summary()
-        log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
+        with clock:
+            log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
+            log.close()
 
-    metrics["log_bytes"] = log_path.stat().st_size
+    metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
+    sections.append(_log_section(metrics))
     metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
     return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+
+
+def _log_statistics(
+    log: RunLogWriter, path: Path, write_seconds: float, run_seconds: float, n_frames: int
+) -> dict[str, float | int]:
+    size = path.stat().st_size
+    return {
+        "log_bytes": size,
+        "log_bytes_per_frame": size / n_frames if n_frames else 0.0,
+        "log_messages": log.n_messages,
+        "log_write_seconds": write_seconds,
+        "log_write_fraction": write_seconds / run_seconds if run_seconds > 0 else 0.0,
+        "log_write_mb_per_s": size / 1e6 / write_seconds if write_seconds > 0 else 0.0,
+        "log_syncs": log.n_syncs,
+    }
+
+
+def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
+    rows = [
+        ("size", f"{metrics['log_bytes'] / 1e6:.2f} MB ({metrics['log_bytes_per_frame'] / 1024:.1f} KiB per frame)"),
+        ("messages", str(metrics["log_messages"])),
+        ("time spent writing", f"{metrics['log_write_seconds']:.2f} s ({100 * metrics['log_write_fraction']:.1f} % of the run)"),
+        ("write throughput", f"{metrics['log_write_mb_per_s']:.1f} MB/s (compressed bytes on disk per second of writing)"),
+        ("fsyncs", str(metrics["log_syncs"])),
+    ]
+    table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
+    note = (
+        "Writing includes encoding the images, serialising every message, chunk compression "
+        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with "
+        "`foxglove/slamfront-layout.json`."
+    )
+    return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 
 
 def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:

@@ -6,8 +6,9 @@ from collections.abc import Sequence
 
 import cv2
 import numpy as np
-import slamfront
 from pydantic import Field
+
+import slamfront
 from slamfront.messages import Features
 
 

@@ -12,16 +12,32 @@ import sys
 from collections.abc import Sequence
 
 import slamfront
-from slamfront.cli import inspect_cmd, optimize_cmd, outliers_cmd, plugins_cmd, recipes_cmd, run_cmd
+from slamfront.cli import (
+    datasets_cmd,
+    diff_cmd,
+    inspect_cmd,
+    optimize_cmd,
+    outliers_cmd,
+    plugins_cmd,
+    recipes_cmd,
+    recover_cmd,
+    replay_cmd,
+    retrieval_cmd,
+    run_cmd,
+    sweep_cmd,
+)
 from slamfront.errors import SlamfrontError
 
-COMMANDS = (run_cmd, plugins_cmd, inspect_cmd, recipes_cmd, optimize_cmd, outliers_cmd)
+COMMANDS = (
+    run_cmd, replay_cmd, sweep_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
+    datasets_cmd, optimize_cmd, outliers_cmd,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slamfront",
-        description="Plugin-based visual SLAM front end: run recipes, inspect logs, list plugins.",
+        description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins.",
     )
     parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

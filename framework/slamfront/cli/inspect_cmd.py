@@ -1,4 +1,4 @@
-"""``slamfront inspect LOG [--json]``"""
+"""``slamfront inspect LOG [--json] [--recipe] [--validate]``"""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import json
 from pathlib import Path
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LogSummary, summarize
+from slamfront.mcaplog.reader import LogSummary, log_file, read_attachment, summarize
+from slamfront.mcaplog.validate import validate_log
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -16,11 +17,19 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("log", type=Path, help="an .mcap file (or a run folder holding run.mcap)")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--recipe", action="store_true", help="print the recipe the log embeds (YAML) and nothing else")
+    parser.add_argument(
+        "--validate", action="store_true",
+        help="also decode every message and check each topic's schema is a Foxglove or a registered slamfront one",
+    )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    path = args.log / "run.mcap" if args.log.is_dir() else args.log
+    path = log_file(args.log)
+    if args.recipe:
+        print(read_attachment(path, "recipe.yaml").decode(), end="")
+        return 0
     summary = summarize(path)
     if args.json:
         print(json.dumps(summary.to_dict(), indent=2))
@@ -29,6 +38,13 @@ def run(args: argparse.Namespace) -> int:
     if not summary.complete:
         # what could be read is shown above; the exit status says the file is damaged
         raise LogError(f"{path}: {summary.problem}")
+    if args.validate:
+        validation = validate_log(path)
+        for problem in validation.problems:
+            print(f"INVALID: {problem}")
+        if not validation.valid:
+            raise LogError(f"{path}: {len(validation.problems)} problem(s) found by --validate")
+        print(f"valid: {validation.n_messages} messages on {validation.n_topics} topics decoded")
     return 0
 
 
@@ -37,7 +53,7 @@ def _print_summary(summary: LogSummary) -> None:
     if summary.start_ns is not None:
         print(f"time span: {(summary.end_ns - summary.start_ns) / 1e9:.3f} s")
     if not summary.complete:
-        print("INCOMPLETE: only the complete chunks are listed")
+        print(f"INCOMPLETE: only what could be read is listed ({summary.problem})")
     width = max((len(t.topic) for t in summary.topics), default=5)
     for topic in summary.topics:
         print(f"  {topic.topic:<{width}}  {topic.count:>7}  {topic.schema_name} ({topic.message_encoding})")

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from slamfront.recipe import build_pipeline, load_recipe
-from slamfront.runtime import run_pipeline
+from slamfront.runtime import RunResult, run_pipeline
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -37,12 +37,20 @@ def run(args: argparse.Namespace) -> int:
     result = run_pipeline(
         pipeline, str(path), out_dir, progress=False if args.quiet else None, max_frames=args.max_frames
     )
+    print_outcome(result)
+    return 0
+
+
+def print_outcome(result: RunResult) -> None:
+    """Where the outputs are and the headline metrics."""
     metrics = result.metrics
     print(f"log:     {result.log_path}")
     print(f"report:  {result.report_path}")
     print(f"metrics: {result.metrics_path}")
-    shown = [k for k in ("recall_at_100p", "auc_pr", "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second") if k in metrics]
+    shown = [
+        k for k in ("recall_at_100p", "auc_pr", "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second")
+        if k in metrics
+    ]
     for key in shown:
         value = metrics[key]
         print(f"  {key} = {value:.4g}" if isinstance(value, float) else f"  {key} = {value}")
-    return 0

@@ -53,3 +53,20 @@ def pairwise(a: np.ndarray, b: np.ndarray, metric: Metric, chunk: int = 1024) ->
 def to_one(query: np.ndarray, rows: np.ndarray, metric: Metric) -> np.ndarray:
     """(M,) distances from one descriptor ``query`` (D,) to each row of ``rows`` (M, D)."""
     return pairwise(query[None, :], rows, metric)[0]
+
+
+def k_nearest(queries: np.ndarray, rows: np.ndarray, k: int, metric: Metric) -> np.ndarray:
+    """(Q, min(k, M)) int64 indices of the ``k`` nearest rows to each query, nearest first.
+
+    Ties are broken by row index (a stable sort of all distances), so the answer is
+    deterministic. Queries are processed in chunks that keep the temporary arrays of
+    L1/Hamming near 64 MB whatever Q and M.
+    """
+    queries = np.atleast_2d(queries)
+    k = min(k, len(rows))
+    chunk = max(1, (1 << 24) // max(1, rows.shape[0] * rows.shape[1]))
+    out = np.empty((len(queries), k), dtype=np.int64)
+    for start in range(0, len(queries), chunk):
+        block = pairwise(queries[start : start + chunk], rows, metric, chunk=chunk)
+        out[start : start + chunk] = np.argsort(block, axis=1, kind="stable")[:, :k]
+    return out

@@ -73,6 +73,54 @@ class LoopGroundTruth:
         return cls.from_rows(queries, rows)
 
     @classmethod
+    def from_places(
+        cls,
+        queries: np.ndarray,
+        query_places: Sequence[np.ndarray],
+        frames: np.ndarray,
+        frame_places: np.ndarray,
+        tolerance: float,
+    ) -> LoopGroundTruth:
+        """Ground truth from where along a route every frame is.
+
+        Each candidate frame has a place coordinate (its position along the reference
+        route: the frame number in the original traversal, or metres); a query is at one
+        or more places. A report is correct when the matched frame's place is within
+        ``tolerance`` of one of the query's places. Unlike :meth:`band`, this stays right
+        when the candidates were reordered or partly replaced (seed 000 §4.4,
+        experiments 2 and 3).
+
+        :param queries: (Q,) frame indices of the queries.
+        :param query_places: Q arrays of the places each query shows (empty: a place
+            never seen in the candidates, so any report is a false positive).
+        :param frames: (R,) frame indices that may be reported as matches.
+        :param frame_places: (R,) float place of each candidate; NaN for frames of no
+            place on the route (replaced by another dataset's frames).
+        :param tolerance: zeta, in place units.
+        """
+        queries = np.asarray(queries, dtype=np.int64)
+        frames = np.asarray(frames, dtype=np.int64)
+        frame_places = np.asarray(frame_places, dtype=np.float64)
+        if len(query_places) != len(queries):
+            raise CoreError(f"{len(queries)} queries but {len(query_places)} ground-truth entries")
+        if frames.shape != frame_places.shape:
+            raise CoreError(f"{len(frames)} candidate frames but {len(frame_places)} places")
+        if tolerance < 0:
+            raise CoreError("tolerance must be >= 0")
+        known = np.isfinite(frame_places)
+        order = np.argsort(frame_places[known], kind="stable")
+        sorted_places, sorted_frames = frame_places[known][order], frames[known][order]
+        rows = []
+        for places in query_places:
+            places = np.asarray(places, dtype=np.float64).ravel()
+            lo = np.searchsorted(sorted_places, places - tolerance, side="left")
+            hi = np.searchsorted(sorted_places, places + tolerance, side="right")
+            hits = [sorted_frames[a:b] for a, b in zip(lo, hi)]
+            rows.append(np.unique(np.concatenate(hits)) if hits else np.empty(0, dtype=np.int64))
+        order_q = np.argsort(queries, kind="stable")
+        return cls.from_rows(queries[order_q], [rows[i] for i in order_q])
+
+    @classmethod
     def from_rows(cls, queries: np.ndarray, rows: Sequence[np.ndarray]) -> LoopGroundTruth:
         """Build from one array of correct matches per query."""
         queries = np.asarray(queries, dtype=np.int64)

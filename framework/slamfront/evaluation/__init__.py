@@ -10,12 +10,15 @@ from slamfront.evaluation.backend import BackendEvaluation
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.evaluation.frames import FrameOverview
 from slamfront.evaluation.loops import LoopClosureEvaluation
+from slamfront.evaluation.retrieval import DescriptorRetrieval
 from slamfront.plugin import Kind
 
 
 def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
     """Fresh evaluations for a run whose recipe has the stages ``kinds``."""
     chosen: list[Evaluation] = [FrameOverview()]
+    if "descriptor" in kinds:
+        chosen.append(DescriptorRetrieval())
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
     if "backend" in kinds:

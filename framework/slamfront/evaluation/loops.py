@@ -1,14 +1,54 @@
 """Loop-closure evaluation: precision-recall, recall at 100 % precision, AUC-PR, recall@K,
-and the match plot (chosen reference vs query over the ground-truth band)."""
+the search-space table, and the match plot (chosen reference vs query over the
+ground-truth band).
+
+Scores are computed at the source's own tolerance and, for sources that can change it
+(``Source.loop_ground_truth_at``), at every extra tolerance in ``eval.tolerances``
+(metrics suffixed ``_zeta<t>``), so one run gives, say, zeta = 3 and zeta = 1.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
-from slamfront.core.loops import precision_recall, recall_at_k
+from slamfront.core.loops import LoopGroundTruth, PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopResult, Message
 from slamfront.report import plots
+
+PR_CURVE_FILE = "pr_curve.csv"
+"""The run's precision-recall curve beside metrics.json, for campaigns comparing runs."""
+
+
+def write_pr_curve(curve: PrecisionRecall, path: Path) -> Path:
+    """One row per threshold (decreasing): ``threshold,precision,recall``, full float precision."""
+    rows = (f"{t!r},{p!r},{r!r}" for t, p, r in zip(curve.thresholds.tolist(), curve.precision.tolist(),
+                                                     curve.recall.tolist()))
+    path.write_text("\n".join(["threshold,precision,recall", *rows]) + "\n")
+    return path
+
+
+def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(threshold, precision, recall)`` arrays from a file :func:`write_pr_curve` wrote."""
+    lines = path.read_text().splitlines()[1:]
+    table = np.array([[float(v) for v in line.split(",")] for line in lines if line], dtype=np.float64)
+    table = table.reshape(-1, 3)
+    return table[:, 0], table[:, 1], table[:, 2]
+
+
+_PER_TOLERANCE = ("recall_at_100p", "auc_pr", "n_queries_with_true_match", "threshold_at_100p",
+                  "precision_at_operating_point", "recall_at_operating_point")
+
+
+@dataclass
+class _Scores:
+    metrics: dict[str, Any]
+    curve: PrecisionRecall
+    correct: np.ndarray
 
 
 class LoopClosureEvaluation(Evaluation):
@@ -26,10 +66,7 @@ class LoopClosureEvaluation(Evaluation):
         elif isinstance(message, FrameInfo):
             self._sequence_index[message.frame] = (message.traversal, message.sequence_index)
 
-    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
-        truth = context.source.loop_ground_truth()
-        if truth is None:
-            return EvaluationReport(self.title, markdown="The source has no loop ground truth: nothing to score.\n")
+    def _score(self, truth: LoopGroundTruth, ks: list[int]) -> _Scores:
         frames = truth.queries
         missing = LoopResult(frame=-1, match=-1, confidence=float("nan"), accepted=False, reason="not reported")
         results = [self._results.get(int(f), missing) for f in frames]
@@ -40,10 +77,9 @@ class LoopClosureEvaluation(Evaluation):
         correct = truth.is_correct(frames, match)
         positives = truth.has_true_match()
         curve = precision_recall(confidence, answered, correct, int(positives.sum()))
-
         op_accepted = accepted & answered
         op_tp = int(np.sum(op_accepted & correct))
-        metrics: dict[str, float | int | None] = {
+        metrics: dict[str, Any] = {
             "recall_at_100p": curve.recall_at_100p,
             "auc_pr": curve.auc,
             "n_queries": int(len(frames)),
@@ -56,27 +92,82 @@ class LoopClosureEvaluation(Evaluation):
         }
         candidates = [r.candidates for r in results]
         if any(c is not None for c in candidates):
-            for k, value in recall_at_k(frames, candidates, truth, context.options.recall_at_k).items():
+            for k, value in recall_at_k(frames, candidates, truth, ks).items():
                 metrics[f"recall_at_{k}"] = value
+        return _Scores(metrics, curve, correct)
+
+    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
+        truth = context.source.loop_ground_truth()
+        if truth is None:
+            return EvaluationReport(self.title, markdown="The source has no loop ground truth: nothing to score.\n")
+        zeta = getattr(context.source.config, "tolerance", None)
+        main = self._score(truth, context.options.recall_at_k)
+        write_pr_curve(main.curve, context.out_dir / PR_CURVE_FILE)
+        metrics = dict(main.metrics)
+        label = context.plugin_names.get("loop_detector", "detector")
+        curves = {label + (f" (zeta={zeta})" if zeta is not None else ""): (main.curve.recall, main.curve.precision)}
+        notes = []
+        for tolerance in context.options.tolerances:
+            other_truth = context.source.loop_ground_truth_at(tolerance)
+            if other_truth is None:
+                notes.append(f"The source cannot be scored at tolerance {tolerance} (no tolerance to change).")
+                continue
+            other = self._score(other_truth, context.options.recall_at_k)
+            for key, value in other.metrics.items():
+                if key in _PER_TOLERANCE or (key.startswith("recall_at_") and key[len("recall_at_"):].isdigit()):
+                    metrics[f"{key}_zeta{tolerance}"] = value
+            curves[f"{label} (zeta={tolerance})"] = (other.curve.recall, other.curve.precision)
+        space = self._search_space(context)
+        metrics.update({k: v for k, v in space.items() if k not in context.statistics})
 
         figures = []
         if context.options.plots:
-            figures = self._plots(context, curve, frames, match, confidence, correct, truth)
+            figures = self._plots(context, curves, main, truth)
         table = "\n".join(
-            [
-                "| metric | value |",
-                "| --- | --- |",
-                *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items()),
-            ]
+            ["| metric | value |", "| --- | --- |", *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items())]
         )
-        markdown = f"{table}\n\n" + "".join(f"![{name}]({name})\n\n" for name in figures)
+        search = self._search_space_table({**space, **{k: context.statistics[k] for k in space if k in context.statistics}})
+        markdown = (
+            f"{table}\n\n" + "".join(f"{note}\n\n" for note in notes) + search + "\n\n"
+            + "".join(f"![{name}]({name})\n\n" for name in figures)
+        )
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
 
-    def _plots(self, context, curve, frames, match, confidence, correct, truth) -> list[str]:  # type: ignore[no-untyped-def]
+    def _search_space(self, context: EvaluationContext) -> dict[str, int]:
+        """Seed 000 Table 4.4. Detectors without places search every frame: places = frames."""
+        n_reference = sum(1 for t, _ in self._sequence_index.values() if t == "reference")
+        n_query = sum(1 for t, _ in self._sequence_index.values() if t in ("query", "stream"))
+        answered = sum(1 for r in self._results.values() if r.match >= 0)
+        return {
+            "n_frames_reference": n_reference,
+            "n_frames_query": n_query,
+            "n_places_reference": n_reference,
+            "n_places_query": n_query,
+            "n_searches": answered,
+        }
+
+    @staticmethod
+    def _search_space_table(space: dict[str, int]) -> str:
+        return "\n".join([
+            "Search space (seed 000 Table 4.4):",
+            "",
+            "| frames per traversal (ref / query) | reference places | query places | searches for a loop |",
+            "| --- | --- | --- | --- |",
+            f"| {space['n_frames_reference']} / {space['n_frames_query']} | {space['n_places_reference']} | "
+            f"{space['n_places_query']} | {space['n_searches']} |",
+        ])
+
+    def _plots(self, context, curves, main: _Scores, truth: LoopGroundTruth) -> list[str]:  # type: ignore[no-untyped-def]
+        curve = main.curve
         pr_path = plots.pr_curves(
-            {context.plugin_names.get("loop_detector", "detector"): (curve.recall, curve.precision)},
+            curves,
             context.out_dir / "pr.png",
             title=f"precision-recall (recall@100%P = {curve.recall_at_100p:.3f}, AUC = {curve.auc:.3f})",
+        )
+        frames = truth.queries
+        match = np.array([self._results[int(f)].match if int(f) in self._results else -1 for f in frames])
+        confidence = np.array(
+            [self._results[int(f)].confidence if int(f) in self._results else np.nan for f in frames], dtype=np.float64
         )
 
         def seq(frame_indices: np.ndarray) -> np.ndarray:
@@ -96,7 +187,7 @@ class LoopClosureEvaluation(Evaluation):
             query=seq(frames),
             match=seq(match),
             confidence=np.nan_to_num(confidence, nan=0.0),
-            correct=correct,
+            correct=main.correct,
             truth_lo=lo,
             truth_hi=hi,
             path=context.out_dir / "matches.png",

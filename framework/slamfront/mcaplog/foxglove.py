@@ -15,10 +15,13 @@ from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.LinePrimitive_pb2 import LinePrimitive
 from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.SceneEntity_pb2 import SceneEntity
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.timestamp_pb2 import Timestamp
 from scipy.spatial.transform import Rotation
@@ -72,19 +75,101 @@ def camera_calibration(camera: Camera, stamp_ns: int) -> CameraCalibration:
     )
 
 
-def depth_image(depth_m: np.ndarray, stamp_ns: int) -> RawImage:
-    """Depth in metres as a 16-bit millimetre ``RawImage`` (encoding ``16UC1``)."""
-    millimetres = np.clip(np.nan_to_num(depth_m) * 1000.0, 0, 65535).astype("<u2")
-    height, width = millimetres.shape
+DEPTH_ENCODINGS = ("16UC1", "32FC1")
+
+
+def depth_image(depth_m: np.ndarray, stamp_ns: int, encoding: str = "16UC1") -> RawImage:
+    """Depth as a ``RawImage``: ``16UC1`` millimetres (compact), or ``32FC1`` metres
+    (the float32 values bit for bit, so a replay can feed them to a stage again)."""
+    if encoding == "16UC1":
+        pixels = np.clip(np.nan_to_num(depth_m) * 1000.0, 0, 65535).astype("<u2")
+    elif encoding == "32FC1":
+        pixels = np.asarray(depth_m, dtype="<f4")
+    else:
+        raise ValueError(f"depth encoding must be one of {DEPTH_ENCODINGS}, not {encoding!r}")
+    height, width = pixels.shape
     return RawImage(
         timestamp=timestamp(stamp_ns),
         frame_id=CAMERA_FRAME,
         width=width,
         height=height,
-        encoding="16UC1",
-        step=width * 2,
-        data=millimetres.tobytes(),
+        encoding=encoding,
+        step=width * pixels.itemsize,
+        data=pixels.tobytes(),
     )
+
+
+def decode_depth(message: RawImage) -> np.ndarray:
+    """(H, W) float32 metres from :func:`depth_image`'s output."""
+    dtype = "<u2" if message.encoding == "16UC1" else "<f4"
+    pixels = np.frombuffer(message.data, dtype=dtype).reshape(message.height, message.width)
+    return pixels.astype(np.float32) / 1000.0 if message.encoding == "16UC1" else pixels.astype(np.float32)
+
+
+def decode_image(message: CompressedImage) -> np.ndarray:
+    """The RGB (or grey) uint8 image of :func:`compressed_image`'s output."""
+    pixels = cv2.imdecode(np.frombuffer(message.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if pixels is None:
+        raise ValueError(f"cannot decode a {message.format} image")
+    return pixels if pixels.ndim == 2 else cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+
+
+def point_cloud(
+    points: np.ndarray, stamp_ns: int, colors: np.ndarray | None = None, frame_id: str = CAMERA_FRAME
+) -> PointCloud:
+    """(N, 3) points (float32 x, y, z) with optional (N, 3) uint8 RGB colours."""
+    points = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 3)
+    fields = [
+        PackedElementField(name=axis, offset=4 * k, type=PackedElementField.FLOAT32) for k, axis in enumerate("xyz")
+    ]
+    if colors is None:
+        record = points
+    else:
+        rgba = np.concatenate(
+            [np.asarray(colors, dtype=np.uint8).reshape(-1, 3), np.full((len(points), 1), 255, np.uint8)], axis=1
+        )
+        record = np.empty(len(points), dtype=[("xyz", "<f4", 3), ("rgba", "u1", 4)])
+        record["xyz"], record["rgba"] = points, rgba
+        fields += [
+            PackedElementField(name=name, offset=12 + k, type=PackedElementField.UINT8)
+            for k, name in enumerate(("red", "green", "blue", "alpha"))
+        ]
+    return PointCloud(
+        timestamp=timestamp(stamp_ns),
+        frame_id=frame_id,
+        point_stride=int(record.itemsize if colors is not None else 12),
+        fields=fields,
+        data=record.tobytes(),
+    )
+
+
+def line_entity(
+    entity_id: str,
+    points: np.ndarray,
+    stamp_ns: int,
+    rgba: tuple[float, float, float, float],
+    strip: bool,
+    thickness: float = 2.0,
+    frame_id: str = MAP_FRAME,
+) -> SceneEntity:
+    """A scene entity of lines: a polyline through (N, 3) ``points`` when ``strip``, else
+    segments between consecutive pairs. Thickness in pixels (scale invariant)."""
+    entity = SceneEntity(timestamp=timestamp(stamp_ns), frame_id=frame_id, id=entity_id)
+    line = entity.lines.add()
+    line.type = LinePrimitive.LINE_STRIP if strip else LinePrimitive.LINE_LIST
+    line.thickness = thickness
+    line.scale_invariant = True
+    line.pose.orientation.w = 1.0
+    line.color.CopyFrom(Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]))
+    for x, y, z in np.asarray(points, dtype=np.float64).reshape(-1, 3):
+        point = line.points.add()
+        point.x, point.y, point.z = float(x), float(y), float(z)
+    return entity
+
+
+def scene_update(entities: list[SceneEntity]) -> SceneUpdate:
+    """A ``SceneUpdate`` replacing the given entities (same id: the newer one wins)."""
+    return SceneUpdate(entities=entities)
 
 
 def pose_in_frame(matrix: np.ndarray, stamp_ns: int, frame_id: str = MAP_FRAME) -> PoseInFrame:
@@ -111,35 +196,6 @@ def frame_transforms(matrix: np.ndarray, stamp_ns: int, parent: str = MAP_FRAME,
     transform.rotation.x, transform.rotation.y = float(qx), float(qy)
     transform.rotation.z, transform.rotation.w = float(qz), float(qw)
     return FrameTransforms(transforms=[transform])
-
-
-def scene_lines(
-    segments: np.ndarray,
-    stamp_ns: int,
-    entity_id: str,
-    color: tuple[float, float, float, float] = (0.9, 0.1, 0.1, 1.0),
-    thickness_px: float = 2.0,
-    frame_id: str = MAP_FRAME,
-) -> SceneUpdate:
-    """Line segments as one ``SceneUpdate`` entity (a LINE_LIST), e.g. loop-closure edges.
-
-    :param segments: (K, 2, 3) or (K, 2, 2) segment endpoints (planar ones at z = 0).
-    :param entity_id: the entity to replace: a later update with the same id redraws it.
-    """
-    segments = np.asarray(segments, dtype=np.float64).reshape(-1, 2, np.shape(segments)[-1] if len(segments) else 3)
-    if segments.shape[-1] == 2:
-        segments = np.concatenate([segments, np.zeros((*segments.shape[:2], 1))], axis=-1)
-    update = SceneUpdate()
-    entity = update.entities.add(timestamp=timestamp(stamp_ns), frame_id=frame_id, id=entity_id)
-    entity.frame_locked = True
-    line = entity.lines.add(
-        type=LinePrimitive.LINE_LIST, thickness=thickness_px, scale_invariant=True,
-        color=Color(r=color[0], g=color[1], b=color[2], a=color[3]),
-    )
-    line.pose.orientation.w = 1.0
-    for x, y, z in segments.reshape(-1, 3).tolist():
-        line.points.add(x=x, y=y, z=z)
-    return update
 
 
 _LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}

@@ -14,15 +14,15 @@ from pathlib import Path
 from typing import Any
 
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, DataEnd, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from slamfront.errors import LogError
+from slamfront.mcaplog.scan import MAGIC, RecordScanner, ScanState
 from slamfront.messages import decode_any, message_class
 
-# Damaged bytes fail in many layers (record parsing, struct, zstd/lz4, CRC checks);
-# every one of them means "the file ends here" for a scan.
+# A damaged summary section fails in many layers (record parsing, struct, CRC checks);
+# every one of them means "scan the data section instead".
 _READ_ERRORS = (Exception,)
 
 
@@ -50,6 +50,8 @@ class LogSummary:
     problem: str | None = None
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     attachments: list[str] = field(default_factory=list)
+    salvaged_messages: int = 0
+    """Messages read from the start of a chunk the file ends inside."""
 
     @property
     def n_messages(self) -> int:
@@ -90,6 +92,8 @@ class LoggedMessage:
     sequence: int
     data: bytes
     schema_data: bytes = b""
+    schema_encoding: str = ""
+    publish_time_ns: int = 0
 
     @cached_property
     def decoded(self) -> Any:
@@ -118,11 +122,30 @@ def _open(path: Path) -> Any:
         raise LogError(f"{path}: cannot read log: {exc.strerror or exc}") from exc
 
 
-def _check_magic(path: Path, stream: Any) -> None:
-    head = stream.read(8)
+def check_magic(path: Path, stream: Any) -> None:
+    head = stream.read(len(MAGIC))
     stream.seek(0)
-    if head != b"\x89MCAP0\r\n":
+    if head != MAGIC:
+        if MAGIC.startswith(head):
+            raise LogError(f"{path}: too short to be an MCAP log ({len(head)} bytes): nothing can be read from it")
         raise LogError(f"{path}: not an MCAP file (bad magic bytes)")
+
+
+def _ends_with_magic(stream: Any) -> bool:
+    stream.seek(0, 2)
+    if stream.tell() < 2 * len(MAGIC):
+        stream.seek(0)
+        return False
+    stream.seek(-len(MAGIC), 2)
+    tail = stream.read(len(MAGIC))
+    stream.seek(0)
+    return tail == MAGIC
+
+
+def log_file(path: Path | str) -> Path:
+    """A log path as users give it: a run folder stands for the ``run.mcap`` inside it."""
+    path = Path(path)
+    return path / "run.mcap" if path.is_dir() else path
 
 
 def summarize(path: Path | str) -> LogSummary:
@@ -132,13 +155,14 @@ def summarize(path: Path | str) -> LogSummary:
     """
     path = Path(path)
     with _open(path) as stream:
-        _check_magic(path, stream)
+        check_magic(path, stream)
         size = path.stat().st_size
         try:
-            reader = make_reader(stream)
-            summary = reader.get_summary()
-            if summary is not None and summary.statistics is not None:
-                return _from_summary(path, size, reader, summary)
+            if _ends_with_magic(stream):
+                reader = make_reader(stream)
+                summary = reader.get_summary()
+                if summary is not None and summary.statistics is not None:
+                    return _from_summary(path, size, reader, summary)
         except _READ_ERRORS:
             pass  # no usable summary section: fall back to a scan
         stream.seek(0)
@@ -173,95 +197,99 @@ def _from_summary(path: Path, size: int, reader: Any, summary: Any) -> LogSummar
     return LogSummary(str(path), size, topics, complete=True, metadata=metadata, attachments=attachments)
 
 
-def _records(path: Path, stream: Any) -> Iterator[tuple[Any, int]]:
-    """Records in file order with the stream position after each; stops at damage."""
-    reader = StreamReader(stream, skip_magic=False, emit_chunks=False)
-    for record in reader.records:
-        yield record, stream.tell()
-
-
 def _scan(path: Path, size: int, stream: Any) -> LogSummary:
     schemas: dict[int, Schema] = {}
     topics: dict[int, TopicSummary] = {}
     metadata: dict[str, dict[str, str]] = {}
     attachments: list[str] = []
-    complete, problem, position = False, None, 0
-    try:
-        for record, position in _records(path, stream):  # noqa: B007 (read after a failure)
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel) and record.id not in topics:
-                schema = schemas.get(record.schema_id)
-                topics[record.id] = TopicSummary(
-                    record.topic,
-                    schema.name if schema else "",
-                    schema.encoding if schema else "",
-                    record.message_encoding,
-                )
-            elif isinstance(record, Message) and record.channel_id in topics:
-                topic = topics[record.channel_id]
-                topic.count += 1
-                topic.first_ns = record.log_time if topic.first_ns is None else min(topic.first_ns, record.log_time)
-                topic.last_ns = record.log_time if topic.last_ns is None else max(topic.last_ns, record.log_time)
-            elif isinstance(record, Metadata):
-                metadata[record.name] = dict(record.metadata)
-            elif isinstance(record, Attachment):
-                attachments.append(record.name)
-            elif isinstance(record, Footer):
-                complete = True
-    except _READ_ERRORS as exc:
-        problem = (
-            f"truncated or damaged after byte {position} of {size}: the chunk being written "
-            f"there and everything after it is lost ({type(exc).__name__}: {exc})"
-        )
-    if not complete and problem is None:
-        problem = f"log has no footer (ends at byte {size}): the run did not finalise it"
+    scanner = RecordScanner(stream, size)
+    for record in scanner.records():
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel) and record.id not in topics:
+            schema = schemas.get(record.schema_id)
+            topics[record.id] = TopicSummary(
+                record.topic,
+                schema.name if schema else "",
+                schema.encoding if schema else "",
+                record.message_encoding,
+            )
+        elif isinstance(record, Message) and record.channel_id in topics:
+            topic = topics[record.channel_id]
+            topic.count += 1
+            topic.first_ns = record.log_time if topic.first_ns is None else min(topic.first_ns, record.log_time)
+            topic.last_ns = record.log_time if topic.last_ns is None else max(topic.last_ns, record.log_time)
+        elif isinstance(record, Metadata):
+            metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, Attachment):
+            attachments.append(record.name)
+    state = scanner.state
+    lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
+    problem = describe_damage(state, max(lasts) if lasts else None) if state.problems or not state.complete else None
     return LogSummary(
-        str(path), size, list(topics.values()), complete=complete, problem=problem,
-        metadata=metadata, attachments=attachments,
+        str(path), size, list(topics.values()), complete=state.complete and not state.problems,
+        problem=problem, metadata=metadata, attachments=attachments,
+        salvaged_messages=state.salvaged_messages,
     )
+
+
+def describe_damage(state: ScanState, last_ns: int | None = None) -> str:
+    """What a scan could not read, in words."""
+    lost = state.size - state.data_end
+    text = "; ".join(state.problems) if state.problems else "no footer"
+    if lost > 0 and not state.data_ended:
+        text += f"; {lost} of {state.size} bytes ({100 * lost / max(state.size, 1):.1f} %) could not be read"
+        if last_ns is not None:
+            text += f": what was logged after {last_ns / 1e9:.3f} s (log time) is lost"
+    if state.salvaged_messages:
+        text += f"; {state.salvaged_messages} messages recovered from the incomplete chunk"
+    return text
 
 
 def read_messages(
     path: Path | str, topics: Iterable[str] | None = None, strict: bool = True
 ) -> Iterator[LoggedMessage]:
-    """Messages in the order they were written.
+    """Messages in the order they were written (from the readable part of a damaged file).
 
     :param topics: only these topics (all when None).
-    :param strict: raise :class:`LogError` at damage; when False, stop quietly there.
+    :param strict: raise :class:`LogError` after the last readable message of a damaged
+        or unfinished file; when False, stop quietly there.
     """
     path = Path(path)
     wanted = set(topics) if topics is not None else None
     with _open(path) as stream:
-        _check_magic(path, stream)
+        check_magic(path, stream)
+        scanner = RecordScanner(stream, path.stat().st_size)
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
-        position = 0
-        try:
-            for record, position in _records(path, stream):  # noqa: B007 (read after a failure)  # noqa: B007 (read after a failure)
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    channel = channels.get(record.channel_id)
-                    if channel is None or (wanted is not None and channel.topic not in wanted):
-                        continue
-                    schema = schemas.get(channel.schema_id)
-                    yield LoggedMessage(
-                        topic=channel.topic,
-                        schema_name=schema.name if schema else "",
-                        message_encoding=channel.message_encoding,
-                        log_time_ns=record.log_time,
-                        sequence=record.sequence,
-                        data=bytes(record.data),
-                        schema_data=bytes(schema.data) if schema else b"",
-                    )
-                elif isinstance(record, (DataEnd, Footer)):
-                    break
-        except _READ_ERRORS as exc:
-            if strict:
-                raise LogError(f"{path}: truncated or damaged after byte {position}: {exc}") from exc
+        data_ended = False
+        for record in scanner.records():
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels.get(record.channel_id)
+                if channel is None or (wanted is not None and channel.topic not in wanted):
+                    continue
+                schema = schemas.get(channel.schema_id)
+                yield LoggedMessage(
+                    topic=channel.topic,
+                    schema_name=schema.name if schema else "",
+                    message_encoding=channel.message_encoding,
+                    log_time_ns=record.log_time,
+                    sequence=record.sequence,
+                    data=bytes(record.data),
+                    schema_data=bytes(schema.data) if schema else b"",
+                    schema_encoding=schema.encoding if schema else "",
+                    publish_time_ns=record.publish_time,
+                )
+            elif isinstance(record, DataEnd):
+                data_ended = True
+                break
+        state = scanner.state
+        if strict and (state.problems or not data_ended):
+            raise LogError(f"{path}: {describe_damage(state)}")
 
 
 def read_attachment(path: Path | str, name: str) -> bytes:
@@ -271,11 +299,11 @@ def read_attachment(path: Path | str, name: str) -> bytes:
     """
     path = Path(path)
     with _open(path) as stream:
-        _check_magic(path, stream)
-        try:
-            for record, _ in _records(path, stream):
-                if isinstance(record, Attachment) and record.name == name:
-                    return bytes(record.data)
-        except _READ_ERRORS as exc:
-            raise LogError(f"{path}: damaged before attachment {name!r} was found: {exc}") from exc
+        check_magic(path, stream)
+        scanner = RecordScanner(stream, path.stat().st_size)
+        for record in scanner.records():
+            if isinstance(record, Attachment) and record.name == name:
+                return bytes(record.data)
+        if scanner.state.problems:
+            raise LogError(f"{path}: no attachment {name!r} in the readable part ({describe_damage(scanner.state)})")
     raise LogError(f"{path}: the log has no attachment {name!r}")

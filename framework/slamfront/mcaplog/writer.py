@@ -4,20 +4,30 @@ Two encodings share one file: Foxglove's protobuf schemas for things Foxglove dr
 (images, poses, transforms, clouds, markers, log lines) and slamfront's JSON messages
 (:mod:`slamfront.messages`) for stage outputs. The writer is finalised on close, also
 when the run ends with an exception, so the file always has its summary and footer.
+
+Power loss is what finalising cannot help with: whatever the operating system has not
+put on disk is gone. Every ``sync_seconds`` the writer closes the chunk being filled
+and fsyncs the file, so a power cut loses at most that many seconds of the run (and
+:mod:`slamfront.mcaplog.scan` still reads the start of a chunk cut in two).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import time
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
 from mcap.writer import CompressionType, Writer
-from mcap_protobuf.schema import register_schema
+from mcap_protobuf.schema import build_file_descriptor_set
 
 from slamfront.errors import LogError
+from slamfront.mcaplog.reader import LoggedMessage
 from slamfront.messages import Message
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
@@ -30,103 +40,187 @@ class RunLogWriter:
 
     :param path: the ``.mcap`` file to create (overwritten if it exists).
     :param compression: ``zstd``, ``lz4`` or ``none`` (chunk compression).
-    :param chunk_size: bytes per chunk; a crash loses at most the chunk being filled.
+    :param chunk_size: bytes per chunk (before compression).
     :param library: written into the MCAP header.
+    :param sync_seconds: close the current chunk and fsync at most this often (None: only
+        when a chunk is full and at the end).
+    :param critical: a context manager factory wrapped around every change to the file,
+        so a signal cannot cut a record in two (see :class:`slamfront.interrupts.Interrupts`).
     """
 
     def __init__(
-        self, path: Path, compression: str = "zstd", chunk_size: int = 1 << 20, library: str = "slamfront"
+        self,
+        path: Path,
+        compression: str = "zstd",
+        chunk_size: int = 1 << 20,
+        library: str = "slamfront",
+        sync_seconds: float | None = None,
+        critical: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext,
     ) -> None:
         self.path = Path(path)
         try:
             self._stream: IO[bytes] = open(self.path, "wb")
         except OSError as exc:
             raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
+        self._critical = critical
         self._writer = Writer(self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
-        self._writer.start(profile=PROFILE, library=library)
+        with self._critical():
+            self._writer.start(profile=PROFILE, library=library)
         self._channels: dict[str, tuple[int, str]] = {}
-        self._json_schemas: dict[str, int] = {}
-        self._protobuf_schemas: dict[str, int] = {}
+        self._schemas: dict[tuple[str, str, bytes], int] = {}
+        self._protobuf_schema_data: dict[str, bytes] = {}
+        self._json_schema_data: dict[str, bytes] = {}
         self._sequence: dict[int, int] = {}
         self._closed = False
+        self._sync_seconds = sync_seconds
+        self._last_sync = time.monotonic()
         self.bytes_payload = 0
         self.n_messages = 0
+        self.n_syncs = 0
 
     # -- channels ------------------------------------------------------------------------
 
-    def _json_channel(self, topic: str, cls: type[Message]) -> int:
-        if cls.schema_name not in self._json_schemas:
-            self._json_schemas[cls.schema_name] = self._writer.register_schema(
-                name=cls.schema_name,
-                encoding="jsonschema",
-                data=json.dumps(cls.json_schema()).encode(),
-            )
-        return self._writer.register_channel(
-            topic=topic, message_encoding="json", schema_id=self._json_schemas[cls.schema_name]
-        )
+    def _schema(self, name: str, encoding: str, data: bytes) -> int:
+        key = (name, encoding, data)
+        if key not in self._schemas:
+            self._schemas[key] = self._writer.register_schema(name=name, encoding=encoding, data=data)
+        return self._schemas[key]
 
-    def _protobuf_channel(self, topic: str, message: Any) -> int:
-        name = type(message).DESCRIPTOR.full_name
-        if name not in self._protobuf_schemas:
-            self._protobuf_schemas[name] = register_schema(self._writer, type(message))
-        schema_id = self._protobuf_schemas[name]
-        return self._writer.register_channel(topic=topic, message_encoding="protobuf", schema_id=schema_id)
-
-    def _channel_for(self, topic: str, schema_name: str, make: Any) -> int:
+    def _channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes, encoding: str) -> int:
         known = self._channels.get(topic)
-        if known is None:
-            channel_id = make()
-            self._channels[topic] = (channel_id, schema_name)
+        if known is not None:
+            channel_id, known_schema = known
+            if known_schema != schema_name:
+                raise LogError(f"{self.path}: topic {topic} carries {known_schema}, cannot write {schema_name} to it")
             return channel_id
-        channel_id, known_schema = known
-        if known_schema != schema_name:
-            raise LogError(f"{self.path}: topic {topic} carries {known_schema}, cannot write {schema_name} to it")
+        # schema id 0 is MCAP's "no schema" (only met when copying a foreign log)
+        schema_id = self._schema(schema_name, schema_encoding, schema_data) if schema_name or schema_encoding else 0
+        channel_id = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
+        self._channels[topic] = (channel_id, schema_name)
         return channel_id
+
+    def _json_schema(self, cls: type[Message]) -> bytes:
+        if cls.schema_name not in self._json_schema_data:
+            self._json_schema_data[cls.schema_name] = json.dumps(cls.json_schema()).encode()
+        return self._json_schema_data[cls.schema_name]
+
+    def _protobuf_schema(self, message: Any) -> tuple[str, bytes]:
+        name = type(message).DESCRIPTOR.full_name
+        if name not in self._protobuf_schema_data:
+            self._protobuf_schema_data[name] = build_file_descriptor_set(type(message)).SerializeToString()
+        return name, self._protobuf_schema_data[name]
 
     # -- writing -------------------------------------------------------------------------
 
-    def _add(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
-        if self._closed:
-            raise LogError(f"{self.path}: the log is already closed")
+    def _add(self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None) -> None:
         sequence = self._sequence.get(channel_id, 0)
         self._sequence[channel_id] = sequence + 1
         self._writer.add_message(
-            channel_id=channel_id, log_time=log_time_ns, publish_time=log_time_ns, data=data, sequence=sequence
+            channel_id=channel_id,
+            log_time=log_time_ns,
+            publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
+            data=data,
+            sequence=sequence,
         )
         self.bytes_payload += len(data)
         self.n_messages += 1
+        if self._sync_seconds is not None and time.monotonic() - self._last_sync >= self._sync_seconds:
+            self._sync()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise LogError(f"{self.path}: the log is already closed")
 
     def write(self, topic: str, message: Message, log_time_ns: int) -> None:
         """Write a slamfront message (JSON) on ``topic``."""
-        channel = self._channel_for(topic, message.schema_name, lambda: self._json_channel(topic, type(message)))
-        self._add(channel, log_time_ns, message.to_json())
+        self._check_open()
+        data = message.to_json()
+        schema = self._json_schema(type(message))
+        with self._critical():
+            channel = self._channel(topic, message.schema_name, "jsonschema", schema, "json")
+            self._add(channel, log_time_ns, data)
 
     def write_foxglove(self, topic: str, message: Any, log_time_ns: int) -> None:
         """Write a protobuf message (a Foxglove schema) on ``topic``."""
-        name = type(message).DESCRIPTOR.full_name
-        channel = self._channel_for(topic, name, lambda: self._protobuf_channel(topic, message))
-        self._add(channel, log_time_ns, message.SerializeToString())
+        self._check_open()
+        name, schema = self._protobuf_schema(message)
+        data = message.SerializeToString()
+        with self._critical():
+            channel = self._channel(topic, name, "protobuf", schema, "protobuf")
+            self._add(channel, log_time_ns, data)
+
+    def write_raw(
+        self,
+        topic: str,
+        schema_name: str,
+        schema_encoding: str,
+        schema_data: bytes,
+        message_encoding: str,
+        data: bytes,
+        log_time_ns: int,
+        publish_time_ns: int | None = None,
+    ) -> None:
+        """Copy a message read from another log unchanged (bytes, schema and times)."""
+        self._check_open()
+        with self._critical():
+            channel = self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
+            self._add(channel, log_time_ns, data, publish_time_ns)
+
+    def copy(self, message: LoggedMessage) -> None:
+        """Copy a message read from another log (:func:`~slamfront.mcaplog.reader.read_messages`)."""
+        self.write_raw(
+            message.topic, message.schema_name, message.schema_encoding, message.schema_data,
+            message.message_encoding, message.data, message.log_time_ns, message.publish_time_ns,
+        )
 
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
         """A metadata record (string key/values), e.g. the run's versions."""
-        self._writer.add_metadata(name, {k: str(v) for k, v in values.items()})
+        self._check_open()
+        with self._critical():
+            self._writer.add_metadata(name, {k: str(v) for k, v in values.items()})
 
-    def add_attachment(self, name: str, media_type: str, data: bytes) -> None:
-        """A file stored inside the log, e.g. the resolved recipe."""
-        now = time.time_ns()
-        self._writer.add_attachment(create_time=now, log_time=now, name=name, media_type=media_type, data=data)
+    def add_attachment(
+        self, name: str, media_type: str, data: bytes, log_time_ns: int = 0, create_time_ns: int | None = None
+    ) -> None:
+        """A file stored inside the log, e.g. the resolved recipe.
+
+        Times default to 0 so two runs of one recipe store identical records.
+        """
+        self._check_open()
+        created = log_time_ns if create_time_ns is None else create_time_ns
+        with self._critical():
+            self._writer.add_attachment(
+                create_time=created, log_time=log_time_ns, name=name, media_type=media_type, data=data
+            )
+
+    # -- durability ----------------------------------------------------------------------
+
+    def _sync(self) -> None:
+        self._writer.flush()  # closes the current chunk and hands it to the OS
+        os.fsync(self._stream.fileno())
+        self._last_sync = time.monotonic()
+        self.n_syncs += 1
+
+    def sync(self) -> None:
+        """Put everything written so far on disk now (closes the current chunk)."""
+        self._check_open()
+        with self._critical():
+            self._sync()
 
     # -- lifetime ------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Write the summary and footer and close the file. Safe to call twice."""
+        """Write the summary and footer, fsync and close the file. Safe to call twice."""
         if self._closed:
             return
         self._closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._stream.close()
+        with self._critical():
+            try:
+                self._writer.finish()
+                self._stream.flush()
+                os.fsync(self._stream.fileno())
+            finally:
+                self._stream.close()
 
     def __enter__(self) -> RunLogWriter:
         return self

@@ -18,6 +18,20 @@ def _pyplot() -> Any:
     return plt
 
 
+def _finish(fig: Any, ax: Any, path: Path, title: str, xlabel: str, ylabel: str, legend: str) -> Path:
+    """Labels, grid, legend; save and close."""
+    plt = _pyplot()
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc=legend, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def pr_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "") -> Path:
     """Precision-recall curves, one per label: ``{label: (recall, precision)}``."""
     plt = _pyplot()
@@ -26,15 +40,21 @@ def pr_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, t
         ax.step(np.r_[0.0, recall], np.r_[1.0, precision], where="post", label=label)
     ax.set_xlim(0, 1.0)
     ax.set_ylim(0, 1.02)
-    ax.set_xlabel("recall")
-    ax.set_ylabel("precision")
-    ax.set_title(title or "precision-recall")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="lower left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _finish(fig, ax, path, title or "precision-recall", "recall", "precision", "lower left")
+
+
+def recall_curves(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "",
+    xlabel: str = "psi (nearest neighbours considered)", ylabel: str = "recall",
+) -> Path:
+    """Recall against the number of neighbours, one line per label: ``{label: (ks, recall)}``."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
+    for label, (ks, recall) in curves.items():
+        ax.plot(ks, recall, marker="o", markersize=3, label=label)
+    ax.xaxis.get_major_locator().set_params(integer=True)  # psi counts neighbours
+    ax.set_ylim(0, 1.02)
+    return _finish(fig, ax, path, title or "recall", xlabel, ylabel, "lower right")
 
 
 def match_plot(

@@ -1,7 +1,6 @@
 """Built-in backends."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
 
 

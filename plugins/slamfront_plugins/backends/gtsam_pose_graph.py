@@ -8,6 +8,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import Backend, DataError, Frame, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core import lie
 from slamfront.core.errors import CoreError
@@ -23,7 +24,6 @@ from slamfront.posegraph.solver import (
     optimize,
     prior_factor,
 )
-
 from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, orb_features, verify
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from pydantic import Field
+
 from slamfront import Camera, PluginConfig
 from slamfront.core import lie
 

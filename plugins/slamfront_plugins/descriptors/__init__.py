@@ -1,10 +1,11 @@
 """Built-in descriptors."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
+from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
+from slamfront_plugins.descriptors.rst_shelo import RstShelo
 
 
 @hookimpl
 def slamfront_descriptors() -> list[type]:
-    return [DownsampledImage]
+    return [DownsampledImage, LocalFeaturesDescriptor, RstShelo]

@@ -8,6 +8,7 @@ from typing import Literal
 import cv2
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.messages import Features
 

@@ -6,10 +6,12 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from pydantic import Field
-from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+
+from slamfront import LoopDetector, Plugin, PluginConfig, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
-from slamfront.messages import Features, LoopResult
+from slamfront.messages import LoopResult
+from slamfront.plugin import global_features, require_global_descriptor
 
 
 class NearestNeighbour(LoopDetector):
@@ -41,13 +43,10 @@ class NearestNeighbour(LoopDetector):
         self._metric = "l2"
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
-        if not getattr(stages["descriptor"], "produces_global", False):
-            raise PluginError(f"needs a global descriptor; {stages['descriptor'].name!r} produces none")
+        require_global_descriptor(stages)
 
     def process(self, inputs: StageInputs) -> Sequence[LoopResult]:
-        features: Features = inputs.one("descriptor", Features)
-        if features.vector is None:
-            raise PluginError(f"descriptor gave no global vector for frame {features.frame}")
+        features = global_features(inputs)
         frame = inputs.frame
         self._metric = features.metric
         if self._vectors is None:

@@ -1,11 +1,12 @@
 """Built-in sources."""
 
 from slamfront import hookimpl
-
 from slamfront_plugins.sources.image_folder import ImageFolder
+from slamfront_plugins.sources.paired_datasets import GardensPoint, Nordland, PairedFolders, UofA, VprBench
+from slamfront_plugins.sources.rgbd import RgbdFolder, TumRgbd
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 
 
 @hookimpl
 def slamfront_sources() -> list[type]:
-    return [SyntheticWorld, ImageFolder]
+    return [SyntheticWorld, ImageFolder, RgbdFolder, TumRgbd, Nordland, GardensPoint, UofA, VprBench, PairedFolders]

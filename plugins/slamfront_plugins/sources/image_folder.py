@@ -7,13 +7,14 @@ from functools import cached_property
 from pathlib import Path
 
 from pydantic import Field
+
 from slamfront import Frame, PluginConfig, Source
 from slamfront.data import DataPath
 from slamfront.imageio import list_images, read_image
 
 
 class ImageFolder(Source):
-    """Images of one folder as a single stream (sorted by file name), e.g. a robot's camera dump.
+    """Images of one folder as a single stream, in natural name order (2 before 10).
 
     Relative folders are looked up under the data root (``$SLAMFRONT_DATA``). Timestamps
     are ``index / fps``. There is no ground truth.

@@ -8,10 +8,10 @@ from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+
 from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.frame import Traversal
-
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
 
 
@@ -126,8 +126,7 @@ class SyntheticWorld(Source):
         c = self.config
         n = c.frames_per_traversal
         if c.mode == "paired":
-            queries = np.arange(n, 2 * n)
-            return LoopGroundTruth.band(queries, queries - n, c.tolerance, valid=(0, n - 1))
+            return self._paired_truth(c.tolerance)
         # stream: a frame revisits every earlier-lap frame within the radius along the route
         reach = int(np.floor(c.revisit_radius_m / self.step_m))
         queries = np.arange(n * c.laps)
@@ -138,3 +137,12 @@ class SyntheticWorld(Source):
             rows.append(np.sort(np.concatenate([earlier * n + near for earlier in range(lap)]))
                         if lap else np.empty(0, dtype=np.int64))
         return LoopGroundTruth.from_rows(queries, rows)
+
+    def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
+        """Paired mode only: stream revisits are defined by ``revisit_radius_m``, not zeta."""
+        return self._paired_truth(tolerance) if self.config.mode == "paired" else None
+
+    def _paired_truth(self, tolerance: int) -> LoopGroundTruth:
+        n = self.config.frames_per_traversal
+        queries = np.arange(n, 2 * n)
+        return LoopGroundTruth.band(queries, queries - n, tolerance, valid=(0, n - 1))

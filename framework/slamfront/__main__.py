@@ -1,0 +1,7 @@
+"""``python -m slamfront ...`` is the ``slamfront`` command."""
+
+import sys
+
+from slamfront.cli import main
+
+sys.exit(main())

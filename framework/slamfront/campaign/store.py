@@ -1,0 +1,94 @@
+"""A campaign's folder: one sub-folder per run, each with a record of how it ended.
+
+```
+DIR/sweep.yaml                the sweep file as run
+DIR/runs/<name>/run.mcap      each run's own log, metrics.json, report.md, pr_curve.csv ...
+DIR/runs/<name>/sweep_run.json  the run's key, factors, status, error and timing
+DIR/results.csv, results.json, report.md, *.png
+```
+
+A run counts as finished when its record says ``ok`` and its ``metrics.json`` is there;
+resuming skips it by key, wherever its folder is (factor labels may have been renamed).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+from slamfront.campaign.plan import PlannedRun
+from slamfront.campaign.task import RunOutcome
+
+RECORD_FILE = "sweep_run.json"
+METRICS_FILE = "metrics.json"
+
+
+class CampaignStore:
+    """Reads and writes the run folders of one campaign output folder."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.runs_dir = root / "runs"
+
+    def finished(self) -> dict[str, Path]:
+        """``{key: run folder}`` of every run recorded as ``ok`` with its metrics present."""
+        found: dict[str, Path] = {}
+        for record_path in sorted(self.runs_dir.glob(f"*/{RECORD_FILE}")):
+            record = self.read_record(record_path.parent)
+            if record is not None and record.get("status") == "ok" and (record_path.parent / METRICS_FILE).is_file():
+                found[str(record.get("key"))] = record_path.parent
+        return found
+
+    def prepare(self, run: PlannedRun) -> Path:
+        """An empty folder for ``run`` (what an interrupted attempt left there is removed)."""
+        folder = self.runs_dir / run.name
+        if folder.exists():
+            shutil.rmtree(folder)
+        folder.mkdir(parents=True)
+        return folder
+
+    def save_files(self, folder: Path, files: dict[str, bytes]) -> None:
+        """Files a remote worker sent back (``RunOutcome.files``)."""
+        for relative, data in files.items():
+            path = folder / relative
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+
+    def record(self, run: PlannedRun, folder: Path, outcome: RunOutcome) -> dict[str, Any]:
+        """Write the run's record (atomically, last: it is what marks the run finished)."""
+        record = {
+            "key": run.key,
+            "index": run.index,
+            "status": outcome.status,
+            "error": outcome.error,
+            "method": run.method,
+            "labels": run.labels,
+            "params": run.params,
+            "repetition": run.repetition,
+            "recipe_file": run.origin,
+            "overrides": list(run.overrides),
+            "max_frames": run.max_frames,
+            "wall_seconds": outcome.wall_seconds,
+            "host": outcome.host,
+        }
+        tmp = folder / (RECORD_FILE + ".tmp")
+        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
+        os.replace(tmp, folder / RECORD_FILE)
+        return record
+
+    @staticmethod
+    def read_record(folder: Path) -> dict[str, Any] | None:
+        try:
+            return json.loads((folder / RECORD_FILE).read_text())
+        except (OSError, ValueError):
+            return None
+
+    @staticmethod
+    def read_metrics(folder: Path) -> dict[str, Any]:
+        try:
+            return json.loads((folder / METRICS_FILE).read_text())
+        except (OSError, ValueError):
+            return {}

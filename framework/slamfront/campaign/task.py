@@ -1,0 +1,115 @@
+"""The one function that executes a campaign run, in a pool process or as a Ray task.
+
+:func:`run_one` takes a picklable :class:`RunTask` and never raises for a failed run:
+the error comes back in the :class:`RunOutcome`, so one bad run never stops a campaign.
+Data paths in the recipe are resolved here, on the machine that runs it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import platform
+import tempfile
+import time
+import traceback
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from slamfront.errors import SlamfrontError
+from slamfront.recipe import build_pipeline, parse_recipe
+from slamfront.runtime import run_pipeline
+
+ERROR_FILE = "error.txt"
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+)
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """What a worker needs to execute one run."""
+
+    key: str
+    name: str
+    recipe: dict[str, Any]
+    """The resolved recipe as plain data; its data paths are still relative."""
+    origin: str
+    """The base recipe file (for messages and the log's provenance)."""
+    out_dir: str | None
+    """Write the run here (a folder the worker sees); None: a temporary folder whose files are returned."""
+    max_frames: int | None = None
+    threads: int = 1
+    """Threads the run's libraries may use (OpenMP, BLAS, OpenCV)."""
+    data_root: str | None = None
+    """The data root on the worker (default: the worker's ``$SLAMFRONT_DATA`` or checkout)."""
+
+
+@dataclass
+class RunOutcome:
+    """How a run ended, sent back to the campaign."""
+
+    key: str
+    status: Literal["ok", "failed"]
+    error: str = ""
+    metrics: dict[str, Any] = field(default_factory=dict)
+    wall_seconds: float = 0.0
+    """The whole task: building the pipeline, running it, evaluating, reporting."""
+    host: str = ""
+    files: dict[str, bytes] | None = None
+    """The run folder's files by relative path, when the task had no ``out_dir``."""
+
+
+def thread_environment(threads: int) -> dict[str, str]:
+    """Thread-count variables for a worker, leaving any the user set alone."""
+    return {name: str(threads) for name in THREAD_VARIABLES if name not in os.environ}
+
+
+def limit_threads(threads: int) -> None:
+    """Keep one run's libraries to ``threads`` threads, so parallel runs do not oversubscribe.
+
+    The environment reaches libraries loaded after this call; OpenCV's pool is set directly.
+    """
+    os.environ.update(thread_environment(threads))
+    import cv2
+
+    cv2.setNumThreads(threads)
+
+
+def run_one(task: RunTask) -> RunOutcome:
+    """Execute one run: ``parse_recipe`` -> ``build_pipeline`` -> ``run_pipeline``."""
+    limit_threads(task.threads)
+    started = time.perf_counter()
+    with _run_folder(task.out_dir) as out_dir:
+        outcome = RunOutcome(key=task.key, status="failed", host=platform.node())
+        try:
+            recipe = parse_recipe(task.recipe, task.origin)
+            data = Path(task.data_root) if task.data_root else None
+            pipeline = build_pipeline(recipe, task.origin, data=data)
+            result = run_pipeline(pipeline, task.origin, out_dir, progress=False, max_frames=task.max_frames)
+            outcome.status, outcome.metrics = "ok", result.metrics
+        except SlamfrontError as exc:
+            outcome.error = f"{type(exc).__name__}: {exc}"
+            (out_dir / ERROR_FILE).write_text(outcome.error + "\n")
+        except Exception as exc:  # a plugin's bug must not stop the campaign: record it with its traceback
+            outcome.error = f"{type(exc).__name__}: {exc}"
+            (out_dir / ERROR_FILE).write_text(traceback.format_exc())
+        outcome.wall_seconds = time.perf_counter() - started
+        if task.out_dir is None:
+            outcome.files = {
+                str(path.relative_to(out_dir)): path.read_bytes() for path in sorted(out_dir.rglob("*")) if path.is_file()
+            }
+    return outcome
+
+
+@contextlib.contextmanager
+def _run_folder(out_dir: str | None) -> Iterator[Path]:
+    if out_dir is not None:
+        path = Path(out_dir)
+        path.mkdir(parents=True, exist_ok=True)
+        yield path
+        return
+    with tempfile.TemporaryDirectory(prefix="slamfront-run-") as tmp:
+        yield Path(tmp)

@@ -1,0 +1,135 @@
+"""Trajectory files: TUM, KITTI, ``pose.txt`` lines and Redwood/Open3D ``.log`` files.
+
+- TUM: ``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments.
+- pose lines: ``tx ty tz qx qy qz qw`` per line (frame i on line i), as the slambook
+  RGB-D samples store camera-to-world poses.
+- KITTI: 12 numbers per line, the top three rows of a 4x4 transform, row-major.
+- Redwood/Open3D log: a header line ``i j n`` then four lines of a 4x4 matrix.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from slamfront.core.errors import CoreError
+from slamfront.core.geometry import pose_from_quaternion, quaternion_of
+from slamfront.errors import DataError
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Poses with timestamps.
+
+    :ivar timestamps: (N,) seconds (frame numbers for formats without time).
+    :ivar poses: (N, 4, 4) camera-to-world transforms.
+    """
+
+    timestamps: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.timestamps)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) translations."""
+        return self.poses[:, :3, 3]
+
+
+def numbered_fields(path: Path) -> Iterator[tuple[int, list[str]]]:
+    """(line number, fields) of each non-empty, non-comment line."""
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read: {exc}") from exc
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.split("#", 1)[0].strip()
+        if stripped:
+            yield number, stripped.replace(",", " ").split()
+
+
+def _floats(path: Path, number: int, fields: list[str], expected: int, what: str) -> np.ndarray:
+    if len(fields) != expected:
+        raise DataError(f"{path}:{number}: expected {expected} numbers ({what}), got {len(fields)}")
+    try:
+        values = np.array([float(f) for f in fields], dtype=np.float64)
+    except ValueError:
+        raise DataError(f"{path}:{number}: not a number in {' '.join(fields)!r}") from None
+    if not np.all(np.isfinite(values)):
+        raise DataError(f"{path}:{number}: non-finite value")
+    return values
+
+
+def _pose(path: Path, number: int, translation: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
+    try:
+        return pose_from_quaternion(translation, quaternion)
+    except CoreError as exc:
+        raise DataError(f"{path}:{number}: {exc}") from None
+
+
+def _finish(path: Path, stamps: list[float], poses: list[np.ndarray]) -> Trajectory:
+    if not poses:
+        raise DataError(f"{path}: no poses in the file")
+    return Trajectory(np.array(stamps, dtype=np.float64), np.array(poses))
+
+
+def read_tum(path: Path) -> Trajectory:
+    """A TUM trajectory (``t tx ty tz qx qy qz qw``)."""
+    stamps, poses = [], []
+    for number, fields in numbered_fields(path):
+        values = _floats(path, number, fields, 8, "t tx ty tz qx qy qz qw")
+        stamps.append(values[0])
+        poses.append(_pose(path, number, values[1:4], values[4:8]))
+    return _finish(path, stamps, poses)
+
+
+def read_pose_lines(path: Path) -> Trajectory:
+    """``tx ty tz qx qy qz qw`` lines; timestamps are the line indices 0, 1, ..."""
+    poses = []
+    for number, fields in numbered_fields(path):
+        values = _floats(path, number, fields, 7, "tx ty tz qx qy qz qw")
+        poses.append(_pose(path, number, values[0:3], values[3:7]))
+    return _finish(path, list(range(len(poses))), poses)
+
+
+def read_kitti(path: Path) -> Trajectory:
+    """KITTI poses (12 numbers per line); timestamps are the line indices."""
+    poses = []
+    for number, fields in numbered_fields(path):
+        values = _floats(path, number, fields, 12, "a 3x4 matrix, row-major")
+        pose = np.eye(4)
+        pose[:3, :4] = values.reshape(3, 4)
+        poses.append(pose)
+    return _finish(path, list(range(len(poses))), poses)
+
+
+def read_redwood_log(path: Path) -> Trajectory:
+    """A Redwood/Open3D ``.log`` trajectory; timestamps are the frame ids of the headers."""
+    rows = list(numbered_fields(path))
+    if len(rows) % 5:
+        raise DataError(f"{path}: {len(rows)} lines is not a whole number of 5-line entries (header + 4x4)")
+    stamps, poses = [], []
+    for k in range(0, len(rows), 5):
+        number, header = rows[k]
+        if len(header) != 3:
+            raise DataError(f"{path}:{number}: expected a header 'i j n', got {' '.join(header)!r}")
+        matrix = np.array([_floats(path, n, f, 4, "a matrix row") for n, f in rows[k + 1 : k + 5]])
+        stamps.append(float(header[0]))
+        poses.append(matrix)
+    return _finish(path, stamps, poses)
+
+
+def write_tum(path: Path, trajectory: Trajectory) -> Path:
+    """Write ``t tx ty tz qx qy qz qw`` lines (full float precision)."""
+    lines = []
+    for stamp, pose in zip(trajectory.timestamps, trajectory.poses, strict=True):
+        values = [stamp, *pose[:3, 3], *quaternion_of(pose)]
+        lines.append(" ".join(repr(float(v)) for v in values))
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)

@@ -1,0 +1,108 @@
+"""Rewriting a damaged or unfinished log into a valid one: ``slamfront recover LOG -o FIXED``.
+
+Every message that can be read is kept (:mod:`slamfront.mcaplog.scan` also reads the
+complete messages at the start of a chunk the file ends inside), with its bytes, times
+and channel, and so are the metadata and attachments. The new file is a finalised MCAP
+with a summary; a ``recovery`` metadata record and a last ``/log`` line say what was
+lost, since the run's own last line is gone with the end of the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+
+from slamfront.errors import LogError
+from slamfront.mcaplog import foxglove
+from slamfront.mcaplog.reader import check_magic, describe_damage
+from slamfront.mcaplog.scan import RecordScanner
+from slamfront.mcaplog.topics import LOG_TOPIC
+from slamfront.mcaplog.writer import RunLogWriter
+
+
+@dataclass
+class Recovery:
+    """What :func:`recover_log` kept and what the source had lost."""
+
+    source: Path
+    target: Path
+    messages: int
+    topics: int
+    metadata: int
+    attachments: int
+    was_complete: bool
+    salvaged_messages: int
+    problem: str | None
+
+
+def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_size: int = 1 << 20) -> Recovery:
+    """Copy everything readable from ``source`` into a new, finalised log at ``target``.
+
+    :raises LogError: ``source`` is missing or not an MCAP file, or ``target`` is ``source``.
+    """
+    source, target = Path(source), Path(target)
+    if not source.is_file():
+        raise LogError(f"{source}: no such log file")
+    if target.exists() and target.resolve() == source.resolve():
+        raise LogError(f"{target}: recover writes a new file; choose another -o path than the damaged log")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    counts = {"messages": 0, "metadata": 0, "attachments": 0}
+    topics: set[str] = set()
+    last_time = 0
+    with open(source, "rb") as stream:
+        check_magic(source, stream)
+        scanner = RecordScanner(stream, source.stat().st_size)
+        with RunLogWriter(target, compression, chunk_size, library="slamfront recover") as log:
+            for record in scanner.records():
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    channel = channels[record.channel_id]
+                    schema = schemas.get(channel.schema_id)
+                    log.write_raw(
+                        channel.topic,
+                        schema.name if schema else "",
+                        schema.encoding if schema else "",
+                        bytes(schema.data) if schema else b"",
+                        channel.message_encoding,
+                        bytes(record.data),
+                        record.log_time,
+                        record.publish_time,
+                    )
+                    topics.add(channel.topic)
+                    counts["messages"] += 1
+                    last_time = max(last_time, record.log_time)
+                elif isinstance(record, Metadata):
+                    log.add_metadata(record.name, dict(record.metadata))
+                    counts["metadata"] += 1
+                elif isinstance(record, Attachment):
+                    log.add_attachment(
+                        record.name, record.media_type, bytes(record.data), record.log_time, record.create_time
+                    )
+                    counts["attachments"] += 1
+            state = scanner.state
+            complete = state.complete and not state.problems
+            problem = None if complete else describe_damage(state, last_time or None)
+            if not complete:
+                ended = "" if state.data_ended else "; how the run ended was not recorded"
+                text = (
+                    f"log recovered by slamfront recover from {source.name}: {counts['messages']} messages kept; "
+                    f"lost: {problem}{ended}"
+                )
+                log.add_metadata(
+                    "recovery",
+                    {"source": str(source), "problem": problem, "messages_kept": counts["messages"],
+                     "salvaged_messages": state.salvaged_messages},
+                )
+                log.write_foxglove(LOG_TOPIC, foxglove.log_line(text, last_time, "warning"), last_time)
+    return Recovery(
+        source=source, target=target, messages=counts["messages"], topics=len(topics), metadata=counts["metadata"],
+        attachments=counts["attachments"], was_complete=complete, salvaged_messages=state.salvaged_messages,
+        problem=problem,
+    )

@@ -1,0 +1,286 @@
+"""The ``hierarchical`` place map: places of similar consecutive frames, a topological map
+over them, and exact nearest-neighbour search of place representatives (seed 000 §3.1).
+
+Places (§3.1.2): a frame joins the last place ``P_l`` when ``S(R(P_l), g_t) >= nu``,
+where ``R(P)`` is the place's first descriptor (its representative) and
+``S = 1 - D / max_distance`` a similarity in [0, 1] from the L1 distance ``D``;
+otherwise it starts place ``P_{l+1}``. A place never spans two traversals.
+
+The map M = (V, E) (§3.1.3): every place that joins the map becomes a vertex, in the
+order it joins; an edge links each vertex to the previous one of the same traversal
+(the route), and :meth:`link` adds a loop-closure edge between two vertices. Places of
+the traversals in ``auto_commit`` (the reference, in the paired protocol of §4.4) join
+the map as they are created; other places join when a detector calls :meth:`commit`
+(after it processed them, Alg. 1 line 14). The map's places are searched by their
+representatives with an incremental VP-tree (exact kNN under L1), and the map keeps the
+frames of its places in map order, so a detector can expand place sequences to frame
+sequences (level 3).
+
+Map positions (0, 1, 2, ... in joining order) are how detectors address map places;
+place ids count every place ever created, map or not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.core.buffers import GrowingRows
+from slamfront.core.distances import to_one
+from slamfront.core.vptree import VPTree, brute_force_knn
+from slamfront.frame import Traversal
+from slamfront.messages import PlaceAssignment
+from slamfront.plugin import global_features, require_global_descriptor
+
+
+def place_sizes(vectors: np.ndarray, threshold: float, max_distance: float = 2.0, metric: str = "l1") -> np.ndarray:
+    """Frames per place when ``vectors`` (one traversal, in order) are grouped with nu = ``threshold``.
+
+    The same rule as :class:`HierarchicalPlaceMap` (a frame joins the last place while
+    ``1 - D(R(P_l), g_t) / max_distance >= nu``), without building a map: used to choose
+    nu from a reference traversal alone.
+    """
+    sizes: list[int] = []
+    representative: np.ndarray | None = None
+    for vector in vectors:
+        if representative is not None:
+            distance = float(to_one(vector, representative[None, :], metric)[0])  # type: ignore[arg-type]
+            if 1.0 - distance / max_distance >= threshold:
+                sizes[-1] += 1
+                continue
+        representative = vector
+        sizes.append(1)
+    return np.asarray(sizes, dtype=np.int64)
+
+
+def choose_similarity_threshold(
+    vectors: np.ndarray, frames_per_place: float, max_distance: float = 2.0, metric: str = "l1"
+) -> float:
+    """The nu on a 0.005 grid whose places average closest to ``frames_per_place`` frames.
+
+    Places shrink as nu grows, so a bisection over the grid finds the crossing; its two
+    neighbours are compared directly.
+    """
+    grid = np.round(np.arange(0.0, 1.0001, 0.005), 3)
+
+    def mean_size(index: int) -> float:
+        return len(vectors) / len(place_sizes(vectors, float(grid[index]), max_distance, metric))
+
+    lo, hi = 0, len(grid) - 1
+    while hi - lo > 1:  # invariant: mean_size(lo) >= target > mean_size(hi), when it holds at the ends
+        middle = (lo + hi) // 2
+        if mean_size(middle) >= frames_per_place:
+            lo = middle
+        else:
+            hi = middle
+    best = min((lo, hi), key=lambda i: abs(mean_size(i) - frames_per_place))
+    return float(grid[best])
+
+
+@dataclass
+class Place:
+    """A run of consecutive similar frames of one traversal."""
+
+    id: int
+    traversal: str
+    frames: list[int] = field(default_factory=list)
+    """Frame indices, in order; ``frames[0]`` gives the representative."""
+    map_position: int = -1
+    """Position in the map, -1 while the place is not in it."""
+
+    @property
+    def representative_frame(self) -> int:
+        return self.frames[0]
+
+
+class HierarchicalPlaceMap(PlaceMap):
+    """Places of similar consecutive frames in a topological map with exact VP-tree search (seed 000 §3.1).
+
+    A frame joins the current place while its similarity to the place's first
+    descriptor stays >= ``similarity_threshold`` (nu). Places of ``auto_commit``
+    traversals join the searchable map at once; a detector commits the others. Outputs
+    one ``PlaceAssignment`` per frame.
+    """
+
+    name = "hierarchical"
+    requires = ("descriptor",)
+
+    class Config(PluginConfig):
+        similarity_threshold: float = Field(
+            0.62, ge=0, le=1, description="nu: a frame joins the current place when S(R(P_l), g_t) >= nu"
+        )
+        max_distance: float = Field(
+            2.0, gt=0, description="distance at which S reaches 0 (2 = the largest L1 distance of unit-L1 vectors)"
+        )
+        auto_commit: list[Traversal] = Field(
+            default_factory=lambda: ["reference"],
+            description="traversals whose places join the map when created (the rest wait for commit())",
+        )
+        search: Literal["vptree", "brute_force"] = Field(
+            "vptree", description="how representatives are searched; both are exact and give the same answer "
+            "(the VP-tree of the seed pays off for low intrinsic dimension, see benchmarks/results/vptree.md)",
+        )
+        leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
+
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        self.places: list[Place] = []
+        self._vectors: GrowingRows | None = None
+        self._place_of_frame: list[int] = []
+        self._map_places: list[int] = []  # place id at each map position
+        self._map_frames: list[int] = []  # frame indices of the map's places, in map order
+        self._map_starts: list[int] = []  # first map-frame position of each map place
+        self._tree: VPTree | None = None
+        self._representatives: GrowingRows | None = None  # of the map places, by map position
+        self._metric = "l1"
+        self.edges: set[tuple[int, int, str]] = set()
+        """Map edges ``(position a, position b, kind)`` with a < b; kind ``route`` or ``loop``."""
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        require_global_descriptor(stages)
+
+    # --- building -------------------------------------------------------------------------
+
+    def process(self, inputs: StageInputs) -> Sequence[PlaceAssignment]:
+        features = global_features(inputs)
+        frame = inputs.frame
+        if frame.index != len(self._place_of_frame):
+            raise PluginError(f"frames must arrive in order: expected {len(self._place_of_frame)}, got {frame.index}")
+        if self._vectors is None:
+            self._vectors = GrowingRows(len(features.vector), dtype=features.vector.dtype)
+            self._metric = features.metric
+            if self._metric == "cosine" and self.config.search == "vptree":
+                raise PluginError("the VP-tree needs a metric descriptor distance (l1, l2 or hamming), not cosine; "
+                                  "use search: brute_force")
+            self._representatives = GrowingRows(len(features.vector), dtype=features.vector.dtype)
+            if self.config.search == "vptree":
+                self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]
+        self._vectors.append(features.vector)
+        current = self.places[-1] if self.places else None
+        new_place = (
+            current is None
+            or current.traversal != frame.traversal
+            or self.similarity(self.distance(features.vector, self.representative(current.id))) < self.config.similarity_threshold
+        )
+        if new_place:
+            current = Place(id=len(self.places), traversal=frame.traversal)
+            self.places.append(current)
+        current.frames.append(frame.index)  # type: ignore[union-attr]
+        self._place_of_frame.append(current.id)  # type: ignore[union-attr]
+        if current.map_position >= 0:  # a growing map place: its new frame joins the map too
+            self._map_frames.append(frame.index)
+        elif new_place and frame.traversal in self.config.auto_commit:
+            self.commit(current.id)  # type: ignore[union-attr]
+        return [PlaceAssignment(frame=frame.index, place=current.id, new_place=new_place, n_places=len(self.places))]  # type: ignore[union-attr]
+
+    def commit(self, place_id: int) -> int:
+        """Add a place to the map (a vertex, a route edge, the VP-tree); returns its map position.
+
+        Places join in order; only the last place may still grow after joining.
+        """
+        place = self.places[place_id]
+        if place.map_position >= 0:
+            return place.map_position
+        position = len(self._map_places)
+        if position and self.places[self._map_places[-1]].traversal == place.traversal:
+            self.edges.add((position - 1, position, "route"))
+        place.map_position = position
+        self._map_places.append(place_id)
+        self._map_starts.append(len(self._map_frames))
+        self._map_frames.extend(place.frames)
+        self._representatives.append(self.representative(place_id))  # type: ignore[union-attr]
+        if self._tree is not None:
+            self._tree.add(self.representative(place_id))
+        return position
+
+    def link(self, position_a: int, position_b: int) -> None:
+        """Record a loop-closure edge between two map vertices."""
+        a, b = sorted((position_a, position_b))
+        if a != b:
+            self.edges.add((a, b, "loop"))
+
+    # --- reading --------------------------------------------------------------------------
+
+    @property
+    def metric(self) -> str:
+        return self._metric
+
+    def distance(self, a: np.ndarray, b: np.ndarray) -> float:
+        return float(to_one(a, b[None, :], self._metric)[0])  # type: ignore[arg-type]
+
+    def similarity(self, distance: float | np.ndarray) -> float | np.ndarray:
+        """S in [0, 1] from a distance: ``1 - D / max_distance``, clipped."""
+        return np.clip(1.0 - np.asarray(distance) / self.config.max_distance, 0.0, 1.0)
+
+    def vectors(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) descriptors of frames (by frame index)."""
+        return self._vectors.view[np.asarray(frames, dtype=np.int64)]  # type: ignore[union-attr]
+
+    def representative(self, place_id: int) -> np.ndarray:
+        """R(P): the place's first descriptor."""
+        return self._vectors.view[self.places[place_id].representative_frame]  # type: ignore[union-attr]
+
+    def place_of(self, frame: int) -> int:
+        return self._place_of_frame[frame]
+
+    @property
+    def n_map_places(self) -> int:
+        return len(self._map_places)
+
+    @property
+    def n_map_frames(self) -> int:
+        return len(self._map_frames)
+
+    def map_place(self, position: int) -> Place:
+        return self.places[self._map_places[position]]
+
+    def map_representatives(self, positions: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) representatives of map places (by map position)."""
+        frames = [self.places[self._map_places[p]].representative_frame for p in positions]
+        return self.vectors(frames)
+
+    def map_frame_range(self, first: int, last: int) -> tuple[int, int]:
+        """Map-frame positions ``[start, stop)`` covered by map places ``first..last``."""
+        start = self._map_starts[first]
+        stop = self._map_starts[last + 1] if last + 1 < len(self._map_starts) else len(self._map_frames)
+        return start, stop
+
+    def map_frames(self, start: int, stop: int) -> np.ndarray:
+        """Frame indices at map-frame positions ``[start, stop)``."""
+        return np.asarray(self._map_frames[start:stop], dtype=np.int64)
+
+    def place_offsets(self) -> np.ndarray:
+        """(P + 1,) map-frame offsets of the map places (CSR): place p is ``[o[p], o[p+1])``."""
+        return np.asarray([*self._map_starts, len(self._map_frames)], dtype=np.int64)
+
+    def nearest(self, vector: np.ndarray, k: int, lo: int = 0, hi: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` map places whose representatives are nearest to ``vector``, among map
+        positions ``lo..hi``: ``(positions, distances)``, nearest first (exact)."""
+        if self._representatives is None or len(self._representatives) == 0:
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
+        if self._tree is None:
+            return brute_force_knn(vector, self._representatives.view, k, self._metric, lo, hi)  # type: ignore[arg-type]
+        return self._tree.knn(vector, k, lo, hi)
+
+    def statistics(self) -> dict[str, float | int]:
+        counts: dict[str, int] = {}
+        frames: dict[str, int] = {}
+        for place in self.places:
+            counts[place.traversal] = counts.get(place.traversal, 0) + 1
+            frames[place.traversal] = frames.get(place.traversal, 0) + len(place.frames)
+        stats: dict[str, float | int] = {
+            "n_places": len(self.places),
+            "n_vertices": len(self._map_places),
+            "n_edges": len(self.edges),
+            "n_loop_edges": sum(1 for edge in self.edges if edge[2] == "loop"),
+        }
+        for traversal in ("reference", "query", "stream"):
+            if traversal in counts:
+                stats[f"n_places_{traversal}"] = counts[traversal]
+                stats[f"frames_per_place_{traversal}"] = frames[traversal] / counts[traversal]
+        return stats

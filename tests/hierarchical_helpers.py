@@ -1,0 +1,56 @@
+"""Feeding hand-made descriptors through the place map and the hierarchical detector, without rendering."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from slamfront import Frame, StageInputs
+from slamfront.messages import Features, Message
+from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
+
+
+def route_descriptors(n_places: int, frames_per_place: int, dim: int = 32, seed: int = 0) -> np.ndarray:
+    """(n_places * frames_per_place, dim) unit-L1 descriptors of a route: frames of a place
+    are near-identical, places are unrelated."""
+    rng = np.random.default_rng(seed)
+    bases = rng.random((n_places, dim)) ** 4
+    frames = np.repeat(bases, frames_per_place, axis=0) + rng.random((n_places * frames_per_place, dim)) * 0.002
+    return (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def noisy(vectors: np.ndarray, amount: float, seed: int = 1) -> np.ndarray:
+    """The same descriptors seen again under a change (multiplicative noise), renormalised."""
+    rng = np.random.default_rng(seed)
+    changed = vectors * (1 + amount * rng.standard_normal(vectors.shape))
+    changed = np.clip(changed, 0, None)
+    return (changed / changed.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def run_stages(
+    vectors: np.ndarray,
+    traversals: Sequence[str],
+    place_map: HierarchicalPlaceMap,
+    detector: HierarchicalSequence,
+    on_output: list[tuple[int, list[Message]]] | None = None,
+) -> list[Message]:
+    """Run frames through place map and detector as the runtime does; returns every detector output.
+
+    :param on_output: when given, receives ``(frame index, outputs)`` for each frame (finish: -1).
+    """
+    outputs: list[Message] = []
+    for index, (vector, traversal) in enumerate(zip(vectors, traversals)):
+        frame = Frame(index=index, timestamp=float(index), image=np.zeros((2, 2), np.uint8), traversal=traversal)  # type: ignore[arg-type]
+        inputs = StageInputs(frame=frame, outputs={"descriptor": [Features(frame=index, vector=vector, metric="l1")]})
+        inputs.outputs["place_map"] = list(place_map.process(inputs))
+        inputs.stages = {"place_map": place_map}
+        produced = list(detector.process(inputs))
+        outputs += produced
+        if on_output is not None:
+            on_output.append((index, produced))
+    produced = list(detector.finish())
+    if on_output is not None:
+        on_output.append((-1, produced))
+    return outputs + produced

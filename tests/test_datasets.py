@@ -1,0 +1,177 @@
+"""Dataset downloads against a local HTTP server and file:// URLs (never the network)."""
+
+from __future__ import annotations
+
+import hashlib
+import http.server
+import io
+import socket
+import tarfile
+import threading
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from slamfront import DataError
+from slamfront.datasets import COMPLETE_MARKER, DatasetDownload, fetch
+
+
+class _RangeHandler(http.server.BaseHTTPRequestHandler):
+    """Serves ``files`` with HTTP range support; ``cut`` makes the first full response stop early."""
+
+    files: dict[str, bytes] = {}
+    cut: dict[str, int] = {}
+    log: list[str] = []
+
+    def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+        body = self.files.get(self.path)
+        if body is None:
+            self.send_error(404)
+            return
+        header = self.headers.get("Range")
+        self.log.append(header or "")
+        if header:
+            start = int(header.split("=")[1].split("-")[0])
+            if start >= len(body):
+                self.send_error(416)
+                return
+            self.send_response(206)
+            self.send_header("Content-Range", f"bytes {start}-{len(body) - 1}/{len(body)}")
+            payload = body[start:]
+        else:
+            self.send_response(200)
+            payload = body
+        self.send_header("Content-Length", str(len(payload)))
+        self.end_headers()
+        if not header and self.path in self.cut:  # the connection drops half way
+            self.wfile.write(payload[: self.cut.pop(self.path)])
+            return
+        self.wfile.write(payload)
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+@pytest.fixture
+def server() -> Iterator[str]:
+    _RangeHandler.files, _RangeHandler.cut, _RangeHandler.log = {}, {}, []
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _RangeHandler)
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+    httpd.server_close()
+
+
+def _zip(members: dict[str, bytes]) -> bytes:
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as bundle:
+        for name, data in members.items():
+            bundle.writestr(name, data)
+    return buffer.getvalue()
+
+
+def _spec(url: str | None, **kw: object) -> DatasetDownload:
+    return DatasetDownload(name="demo", title="demo", url=url, homepage="", license="", **kw)  # type: ignore[arg-type]
+
+
+def test_download_checksum_and_extraction(server: str, tmp_path: Path) -> None:
+    archive = _zip({"top/day/0.png": b"a" * 1000, "top/night/0.png": b"b" * 1000, "README": b"x"})
+    _RangeHandler.files["/demo.zip"] = archive
+    spec = _spec(f"{server}/demo.zip", sha256=hashlib.sha256(archive).hexdigest(), members="top/", strip="top/",
+                 expect=("day/0.png", "night/0.png"))
+    folder = fetch(spec, tmp_path, progress=False)
+    assert (folder / "day" / "0.png").read_bytes() == b"a" * 1000
+    assert not (folder / "README").exists() and (folder / COMPLETE_MARKER).exists()
+    assert fetch(spec, tmp_path) == folder and len(_RangeHandler.log) == 1  # installed: no second download
+
+
+def test_an_interrupted_download_resumes_with_a_range_request(server: str, tmp_path: Path) -> None:
+    archive = _zip({f"f{i}.bin": bytes([i]) * 5000 for i in range(20)})
+    _RangeHandler.files["/demo.zip"] = archive
+    _RangeHandler.cut["/demo.zip"] = 30_000
+    spec = _spec(f"{server}/demo.zip", sha256=hashlib.sha256(archive).hexdigest())
+    with pytest.raises(DataError, match="ended early .* run `slamfront datasets download demo` again to resume"):
+        fetch(spec, tmp_path, progress=False)
+    assert (tmp_path / "demo.zip.part").stat().st_size == 30_000
+    folder = fetch(spec, tmp_path, progress=False)
+    assert _RangeHandler.log == ["", "bytes=30000-"]
+    assert (folder / "f19.bin").read_bytes() == bytes([19]) * 5000
+
+
+def test_a_checksum_mismatch_keeps_nothing_installed(server: str, tmp_path: Path) -> None:
+    _RangeHandler.files["/demo.zip"] = _zip({"a": b"1"})
+    spec = _spec(f"{server}/demo.zip", sha256="0" * 64)
+    with pytest.raises(DataError, match="does not match the published"):
+        fetch(spec, tmp_path, progress=False)
+    assert (tmp_path / "demo.zip.bad").exists() and not spec.is_installed(tmp_path)
+
+
+def test_without_a_published_checksum_it_is_recorded_and_then_enforced(server: str, tmp_path: Path) -> None:
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as bundle:
+        info = tarfile.TarInfo("pkg-1/data/summer/x.png")
+        info.size = 3
+        bundle.addfile(info, io.BytesIO(b"abc"))
+    archive = buffer.getvalue()
+    _RangeHandler.files["/a.tar.gz"] = archive
+    notes: list[str] = []
+    spec = _spec(f"{server}/a.tar.gz", archive="tar", members="pkg-1/data/", strip="pkg-1/data/")
+    folder = fetch(spec, tmp_path, progress=False, report=notes.append)
+    assert (folder / "summer" / "x.png").read_bytes() == b"abc"
+    assert hashlib.sha256(archive).hexdigest() in notes[0]
+    assert (tmp_path / "demo.tar.sha256").read_text().startswith(hashlib.sha256(archive).hexdigest())
+
+
+def test_file_urls_work_offline(tmp_path: Path) -> None:
+    source = tmp_path / "mirror.zip"
+    source.write_bytes(_zip({"day/1.png": b"p"}))
+    folder = fetch(_spec(source.as_uri()), tmp_path / "cache", progress=False, report=lambda _: None)
+    assert (folder / "day" / "1.png").read_bytes() == b"p"
+
+
+def test_offline_is_one_clear_error_saying_where_to_put_the_file(tmp_path: Path) -> None:
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    spec = _spec(f"http://127.0.0.1:{port}/demo.zip")
+    with pytest.raises(DataError, match=f"cannot download demo from .*Offline\\? .* save it as {tmp_path}/demo.zip"):
+        fetch(spec, tmp_path, progress=False, timeout=5)
+
+
+def test_an_archive_placed_by_hand_is_verified_and_extracted(tmp_path: Path) -> None:
+    (tmp_path / "demo.zip").write_bytes(_zip({"a/b.txt": b"hi"}))
+    folder = fetch(_spec("http://unreachable.invalid/demo.zip"), tmp_path, report=lambda _: None)
+    assert (folder / "a" / "b.txt").read_bytes() == b"hi"
+
+
+def test_members_escaping_the_folder_are_refused(tmp_path: Path) -> None:
+    (tmp_path / "demo.zip").write_bytes(_zip({"../../evil.txt": b"x"}))
+    with pytest.raises(DataError, match="outside"):
+        fetch(_spec("http://unreachable.invalid/demo.zip"), tmp_path, report=lambda _: None)
+    assert not (tmp_path.parent / "evil.txt").exists()
+
+
+def test_a_corrupt_archive_is_named(tmp_path: Path) -> None:
+    (tmp_path / "demo.zip").write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="demo.zip: not a valid zip archive"):
+        fetch(_spec("http://unreachable.invalid/demo.zip"), tmp_path, report=lambda _: None)
+
+
+def test_datasets_command(cli, tmp_path: Path) -> None:
+    code, out, _ = cli("datasets", "--cache", tmp_path)
+    assert code == 0
+    for name in ("nordland", "gardens_point", "uofa"):
+        assert name in out
+    code, out, _ = cli("datasets", "path", "gardens_point", "--cache", tmp_path)
+    assert out.strip() == str(tmp_path / "gardens_point")
+    code, _, err = cli("datasets", "download", "uofa", "--cache", tmp_path)
+    assert code == 2 and "Google Drive" in err and str(tmp_path / "uofa" / "day_evening") in err
+    code, _, err = cli("datasets", "download", "nordlnd", "--cache", tmp_path)
+    assert code == 2 and "unknown dataset 'nordlnd'" in err
+    mirror = tmp_path / "gp.zip"
+    mirror.write_bytes(_zip({"day_left/Image000.jpg": b"j"}))
+    code, out, _ = cli("datasets", "download", "gardens_point", "--cache", tmp_path / "c", "--url", mirror.as_uri(), "-q")
+    assert code == 0 and (tmp_path / "c" / "gardens_point" / "day_left" / "Image000.jpg").exists()

@@ -1,0 +1,90 @@
+"""The hierarchical place map: places by threshold nu, the map graph, exact search (seed 000 §3.1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamfront.core.vptree import brute_force_knn
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap, choose_similarity_threshold, place_sizes
+from tests.hierarchical_helpers import route_descriptors
+
+
+def _feed(place_map: HierarchicalPlaceMap, vectors: np.ndarray, traversals: list[str]) -> list:
+    from slamfront import Frame, StageInputs
+    from slamfront.messages import Features
+
+    out = []
+    for index, (vector, traversal) in enumerate(zip(vectors, traversals)):
+        frame = Frame(index=index, timestamp=float(index), image=np.zeros((2, 2), np.uint8), traversal=traversal)  # type: ignore[arg-type]
+        inputs = StageInputs(frame=frame, outputs={"descriptor": [Features(frame=index, vector=vector, metric="l1")]})
+        out += place_map.process(inputs)
+    return out
+
+
+def test_a_frame_joins_the_place_while_similar_to_its_first_descriptor() -> None:
+    # S = 1 - L1 / 2; with nu = 0.8 a frame joins while its L1 distance to R(P_l) is <= 0.4
+    e = np.eye(3, dtype=np.float32)
+    frames = np.stack([e[0], 0.9 * e[0] + 0.1 * e[1], 0.75 * e[0] + 0.25 * e[1], e[1], e[1]])
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.8))
+    assignments = _feed(place_map, frames, ["reference"] * 5)
+    # distances to e0: 0, 0.2, 0.5 (new place), then e1 vs R = frame 2: 0.5 (new place), 0
+    assert [a.place for a in assignments] == [0, 0, 1, 2, 2]
+    assert [a.new_place for a in assignments] == [True, False, True, True, False]
+    assert [p.frames for p in place_map.places] == [[0, 1], [2], [3, 4]]
+
+
+def test_places_never_span_two_traversals() -> None:
+    vectors = np.tile(np.eye(4, dtype=np.float32)[0], (6, 1))
+    place_map = HierarchicalPlaceMap()
+    assignments = _feed(place_map, vectors, ["reference"] * 3 + ["query"] * 3)
+    assert [a.place for a in assignments] == [0, 0, 0, 1, 1, 1]
+    stats = place_map.statistics()
+    assert stats["n_places_reference"] == 1 and stats["n_places_query"] == 1
+    assert stats["n_vertices"] == 1  # query places wait for a commit
+
+
+def test_reference_places_join_the_map_with_route_edges_and_frames_in_order() -> None:
+    vectors = route_descriptors(n_places=6, frames_per_place=3)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    _feed(place_map, vectors, ["reference"] * len(vectors))
+    assert place_map.n_map_places == 6 and place_map.n_map_frames == 18
+    assert place_map.place_offsets().tolist() == [0, 3, 6, 9, 12, 15, 18]
+    assert place_map.map_frame_range(2, 3) == (6, 12)
+    assert place_map.map_frames(6, 9).tolist() == [6, 7, 8]
+    assert sorted(place_map.edges) == [(i, i + 1, "route") for i in range(5)]
+    place_map.link(1, 4)
+    assert place_map.statistics()["n_loop_edges"] == 1
+
+
+def test_committing_query_places_extends_the_map() -> None:
+    vectors = route_descriptors(n_places=4, frames_per_place=2)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    _feed(place_map, vectors, ["reference"] * 4 + ["stream"] * 4)
+    assert place_map.n_map_places == 2
+    assert place_map.commit(2) == 2 and place_map.commit(2) == 2  # idempotent
+    assert place_map.map_frames(0, place_map.n_map_frames).tolist() == [0, 1, 2, 3, 4, 5]
+    assert (1, 2, "route") not in place_map.edges  # another traversal: no route edge
+
+
+@pytest.mark.parametrize("search", ["vptree", "brute_force"])
+def test_nearest_places_equal_brute_force_over_representatives(search: str) -> None:
+    vectors = route_descriptors(n_places=300, frames_per_place=2, dim=16, seed=3)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9, leaf_size=4, search=search))
+    _feed(place_map, vectors, ["reference"] * len(vectors))
+    representatives = place_map.map_representatives(range(place_map.n_map_places))
+    rng = np.random.default_rng(0)
+    for query in rng.random((20, 16)).astype(np.float32):
+        query /= query.sum()
+        got = place_map.nearest(query, 10, lo=4, hi=250)
+        want = brute_force_knn(query, representatives, 10, "l1", lo=4, hi=250)
+        assert got[0].tolist() == want[0].tolist() and np.array_equal(got[1], want[1])
+
+
+def test_choosing_nu_from_a_reference_traversal() -> None:
+    vectors = route_descriptors(n_places=50, frames_per_place=3)
+    sizes = place_sizes(vectors, threshold=0.95)
+    assert sizes.tolist() == [3] * 50  # the route's own places are recovered
+    nu = choose_similarity_threshold(vectors, frames_per_place=3.0)
+    assert place_sizes(vectors, nu).mean() == 3.0
+    assert place_sizes(vectors, 0.0).tolist() == [150]  # nu = 0: one place
