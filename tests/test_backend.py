@@ -6,20 +6,23 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from slamfront import Camera, DataError, Frame, PluginError, StageInputs
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.alignment import ate_rmse
-from slamfront.core.graph_files import format_tum
+from slamfront.formats.poses import Trajectory as PoseFile
+from slamfront.formats.poses import write_tum
 from slamfront.imageio import read_depth, read_image
+from slamfront.local_features import LocalFeatureExtractor
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import LoopConstraint, LoopResult, PoseGraphState, RelativePose, Trajectory
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
-from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, orb_features, verify
+from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, verify
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 from tests.posegraph_fixtures import ring_truth
 
@@ -27,13 +30,13 @@ from tests.posegraph_fixtures import ring_truth
 
 
 def _features(image: np.ndarray, depth: np.ndarray | None, camera: Camera) -> FrameFeatures:
-    keypoints, descriptors = orb_features(image, 1000)
-    return FrameFeatures(keypoints, descriptors, lift(keypoints, depth, camera))
+    features = LocalFeatureExtractor("orb", max_features=1000).extract(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
+    return FrameFeatures(features.keypoints, features.descriptors, lift(features.keypoints, depth, camera))
 
 
 def _error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    difference = lie.relative(truth, estimate)
-    return float(np.linalg.norm(difference[:3, 3])), float(np.rad2deg(lie.rotation_angle(difference)))
+    difference = geometry.relative(truth, estimate)
+    return float(np.linalg.norm(difference[:3, 3])), geometry.rotation_angle_deg(difference)
 
 
 def test_pnp_on_real_rgbd_frames(shared_data: Path) -> None:
@@ -47,7 +50,7 @@ def test_pnp_on_real_rgbd_frames(shared_data: Path) -> None:
     ]
     result = verify(frames[0], frames[1], camera, PnPConfig())
     assert result.transform is not None and result.inliers > 100, result.reason
-    translation, rotation = _error(result.transform, lie.relative(poses[0], poses[4]))
+    translation, rotation = _error(result.transform, geometry.relative(poses[0], poses[4]))
     assert translation < 0.01 and rotation < 0.5  # the true motion is 10 cm and 3 degrees
 
 
@@ -59,7 +62,7 @@ def test_pnp_on_synthetic_revisits_and_refuses_a_wrong_place() -> None:
     features = {k: _features(f.image, f.depth, f.camera) for k, f in frames.items()}
     result = verify(features[9], features[21], source.camera, PnPConfig())
     assert result.transform is not None, result.reason
-    translation, rotation = _error(result.transform, lie.relative(frames[9].pose, frames[21].pose))
+    translation, rotation = _error(result.transform, geometry.relative(frames[9].pose, frames[21].pose))
     assert translation < 0.1 and rotation < 2.0  # lap 2 drives 0.3 m to the side, turned 2 degrees
     wrong = verify(features[3], features[21], source.camera, PnPConfig())
     assert wrong.transform is None and "matches" in wrong.reason
@@ -69,7 +72,7 @@ def test_pnp_on_synthetic_revisits_and_refuses_a_wrong_place() -> None:
 
 
 def _ring_frames() -> list[Frame]:
-    poses = lie.planar_to_spatial(ring_truth())
+    poses = geometry.planar_to_spatial(ring_truth())
     image = np.zeros((8, 8, 3), dtype=np.uint8)
     return [Frame(index=k, timestamp=0.1 * k, image=image, pose=pose) for k, pose in enumerate(poses)]
 
@@ -87,9 +90,9 @@ def _loop_inputs(frame: Frame, with_pose: bool) -> dict[str, list]:
     match = frame.index - 60
     outputs: dict[str, list] = {"loop_detector": [LoopResult(frame=frame.index, match=match, confidence=0.9, accepted=True)]}
     if with_pose:
-        truth = lie.planar_to_spatial(ring_truth())
+        truth = geometry.planar_to_spatial(ring_truth())
         outputs["registration"] = [
-            RelativePose(frame_from=match, frame_to=frame.index, transform=lie.relative(truth[match], truth[frame.index]),
+            RelativePose(frame_from=match, frame_to=frame.index, transform=geometry.relative(truth[match], truth[frame.index]),
                          method="icp", inliers=99)
         ]
     return outputs
@@ -97,7 +100,7 @@ def _loop_inputs(frame: Frame, with_pose: bool) -> dict[str, list]:
 
 def _ate(messages: list, label: str) -> float:
     trajectory = next(m for m in messages if isinstance(m, Trajectory) and m.label == label)
-    truth = lie.planar_to_spatial(ring_truth())[trajectory.frames, :3, 3]
+    truth = geometry.planar_to_spatial(ring_truth())[trajectory.frames, :3, 3]
     return ate_rmse(trajectory.poses[:, :3, 3], truth)
 
 
@@ -136,7 +139,7 @@ def test_odometry_from_a_file_and_from_stages(tmp_path: Path) -> None:
     frames = _ring_frames()
     poses = np.array([f.pose for f in frames])
     trajectory = tmp_path / "odometry.tum"
-    trajectory.write_text(format_tum(np.array([f.timestamp for f in frames]), poses))
+    write_tum(trajectory, PoseFile(np.array([f.timestamp for f in frames]), poses))
     from_file = GtsamPoseGraph(GtsamPoseGraph.Config(odometry="file", odometry_file=trajectory))
     messages = _drive(from_file, frames)
     assert _ate(messages, "odometry") < 1e-6  # exact odometry: the composed path is the truth
@@ -144,7 +147,7 @@ def test_odometry_from_a_file_and_from_stages(tmp_path: Path) -> None:
     def registration(frame: Frame) -> dict[str, list]:
         if frame.index == 0:
             return {}
-        motion = lie.relative(poses[frame.index - 1], poses[frame.index])
+        motion = geometry.relative(poses[frame.index - 1], poses[frame.index])
         return {"registration": [RelativePose(frame_from=frame.index - 1, frame_to=frame.index, transform=motion)]}
 
     from_stages = GtsamPoseGraph(GtsamPoseGraph.Config(odometry="stages"))

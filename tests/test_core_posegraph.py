@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
-from slamfront.core.graph_files import format_g2o, format_tum, parse_graph, parse_trajectory
+from slamfront.core.graph_files import format_g2o, parse_graph
 from slamfront.core.posegraph import (
     check_connected,
     compose_initial_poses,
@@ -36,20 +36,20 @@ def _edge3(i: int, j: int, t: tuple[float, float, float], q: tuple[float, float,
 def test_lie_helpers_round_trip() -> None:
     rng = np.random.default_rng(0)
     quaternions = Rotation.random(20, random_state=1).as_quat()
-    transforms = lie.se3_from_quaternion(rng.normal(size=(20, 3)), quaternions)
-    np.testing.assert_allclose(lie.inverse(transforms) @ transforms, np.broadcast_to(np.eye(4), (20, 4, 4)), atol=1e-12)
-    translation, back = lie.se3_to_quaternion(transforms)
+    transforms = geometry.poses_from_quaternions(rng.normal(size=(20, 3)), quaternions)
+    np.testing.assert_allclose(geometry.invert(transforms) @ transforms, np.broadcast_to(np.eye(4), (20, 4, 4)), atol=1e-12)
+    translation, back = transforms[:, :3, 3], geometry.quaternions_of(transforms)
     assert np.all(back[:, 3] >= 0)
-    np.testing.assert_allclose(lie.se3_from_quaternion(translation, back), transforms, atol=1e-12)
-    planar = lie.se2(rng.normal(size=5), rng.normal(size=5), rng.uniform(-3, 3, 5))
-    np.testing.assert_allclose(lie.se2(*lie.se2_parameters(planar).T), planar, atol=1e-12)
-    spatial = lie.planar_to_spatial(planar)
+    np.testing.assert_allclose(geometry.poses_from_quaternions(translation, back), transforms, atol=1e-12)
+    planar = geometry.se2(rng.normal(size=5), rng.normal(size=5), rng.uniform(-3, 3, 5))
+    np.testing.assert_allclose(geometry.se2(*geometry.se2_parameters(planar).T), planar, atol=1e-12)
+    spatial = geometry.planar_to_spatial(planar)
     assert np.allclose(spatial[:, 2, 3], 0) and np.allclose(spatial[:, :2, 3], planar[:, :2, 2])
     # iSAM's roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)
-    euler = lie.se3_from_euler(np.zeros(3), np.array([0.1, -0.2, 0.3]))[0, :3, :3]
+    euler = geometry.se3_from_euler(np.zeros(3), np.array([0.1, -0.2, 0.3]))[0, :3, :3]
     expected = Rotation.from_euler("z", 0.3).as_matrix() @ Rotation.from_euler("y", -0.2).as_matrix()
     np.testing.assert_allclose(euler, expected @ Rotation.from_euler("x", 0.1).as_matrix(), atol=1e-12)
-    assert float(lie.rotation_angle(lie.exp_se3(np.array([0, 0, 0, 0, 0.4, 0])))) == pytest.approx(0.4)
+    assert geometry.rotation_angle_deg(geometry.exp_se3(np.array([0, 0, 0, 0, 0.4, 0]))) == pytest.approx(np.rad2deg(0.4))
 
 
 def test_g2o_2d_without_vertices_composes_odometry() -> None:
@@ -83,7 +83,7 @@ def test_isam_square_root_information_is_squared() -> None:
     np.testing.assert_allclose(graph.information[0], root.T @ root)
     graph3 = parse_graph(["EDGE3 0 1 1 2 3 0.1 0.2 0.3 " + " ".join(["10"] + ["0"] * 5 + ["10"] + ["0"] * 4 + ["10"] + ["0"] * 3 + ["2", "0", "0", "2", "0", "2"])], "i3").graph
     np.testing.assert_allclose(np.diag(graph3.information[0]), [100, 100, 100, 4, 4, 4])
-    np.testing.assert_allclose(graph3.measurements[0, :3, :3], lie.se3_from_euler(np.zeros(3), np.array([0.1, 0.2, 0.3]))[0, :3, :3])
+    np.testing.assert_allclose(graph3.measurements[0, :3, :3], geometry.se3_from_euler(np.zeros(3), np.array([0.1, 0.2, 0.3]))[0, :3, :3])
 
 
 def test_landmark_records_are_counted_and_skipped() -> None:
@@ -178,24 +178,3 @@ def test_false_closures_follow_the_rate() -> None:
     assert same is graph and not none.any()
     with pytest.raises(CoreError, match=r"\[0, 1\)"):
         random_false_closures(graph, 1.0, rng)
-
-
-def test_trajectory_formats() -> None:
-    tum = parse_trajectory(["# t x y z qx qy qz qw", "1.5 1 2 3 0 0 0 1", "2.5 1 2 4 0 0 1 0"], "gt.txt")
-    assert tum.format == "tum" and tum.stamps.tolist() == [1.5, 2.5]
-    np.testing.assert_allclose(tum.poses[1, :3, :3], np.diag([-1.0, -1.0, 1.0]), atol=1e-12)
-    planar = parse_trajectory(["0 0 0", "1 0 1.57"], "xy.txt")
-    assert planar.format == "xytheta" and planar.poses.shape == (2, 3, 3)
-    kitti = parse_trajectory(["1 0 0 5 0 1 0 6 0 0 1 7"], "k.txt")
-    assert kitti.format == "kitti" and kitti.poses[0, :3, 3].tolist() == [5.0, 6.0, 7.0]
-    written = parse_trajectory(format_tum(tum.stamps, tum.poses).splitlines(), "again")
-    np.testing.assert_allclose(written.poses, tum.poses, atol=1e-12)
-    for lines, message in [
-        (["1 2 3 4 5"], "t.txt:1: 5 columns"),
-        (["1 2 3", "1 2"], "t.txt:2: 2 columns, but the file started with 3"),
-        (["1 2 x"], "t.txt:1: xytheta: 'x' is not a number"),
-        (["1 0 0 0 0 0 0 0"], "zero quaternion"),
-        ([], "no poses found"),
-    ]:
-        with pytest.raises(CoreError, match=message):
-            parse_trajectory(lines, "t.txt")

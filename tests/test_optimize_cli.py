@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from slamfront.core import lie
+from slamfront import DataError
+from slamfront.core import geometry
 from slamfront.core.alignment import ate_rmse
-from slamfront.core.graph_files import format_g2o, format_tum, parse_graph, parse_trajectory
+from slamfront.core.graph_files import format_g2o, parse_graph
 from slamfront.core.posegraph import random_false_closures
+from slamfront.formats.poses import Trajectory as PoseFile
+from slamfront.formats.poses import read_tum, write_tum
+from slamfront.posegraph.io import read_trajectory
 from slamfront.posegraph.solver import SolverOptions, optimize
 from tests.posegraph_fixtures import ring_g2o, ring_graph, ring_truth
 from tests.test_cli import _one_line_error
@@ -27,7 +32,7 @@ def ring_file(tmp_path: Path) -> Path:
 
 def test_optimize_writes_every_output(cli, ring_file: Path, tmp_path: Path) -> None:
     truth_file = tmp_path / "truth.tum"
-    truth_file.write_text(format_tum(np.arange(120.0), ring_truth()))
+    write_tum(truth_file, PoseFile(np.arange(120.0), geometry.planar_to_spatial(ring_truth())))
     out = tmp_path / "out"
     code, stdout, _ = cli("optimize", ring_file, "-o", out, "--ground-truth", truth_file)
     assert code == 0 and "ATE:" in stdout
@@ -38,14 +43,14 @@ def test_optimize_writes_every_output(cli, ring_file: Path, tmp_path: Path) -> N
     assert metrics["ate_rmse_after_m"] < 0.5 * metrics["ate_rmse_before_m"]
     assert metrics["n_vertices"] == 120 and metrics["n_loop_closures"] == 60
     optimised = parse_graph((out / "optimized.g2o").read_text().splitlines(), "optimized.g2o").graph
-    trajectory = parse_trajectory((out / "trajectory.tum").read_text().splitlines(), "trajectory.tum")
-    np.testing.assert_allclose(lie.planar_to_spatial(optimised.poses), trajectory.poses, atol=1e-9)
-    assert ate_rmse(trajectory.poses[:, :2, 3], ring_truth()[:, :2, 2]) == pytest.approx(metrics["ate_rmse_after_m"], rel=1e-6)
+    trajectory = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(geometry.planar_to_spatial(optimised.poses), trajectory.poses, atol=1e-9)
+    assert ate_rmse(trajectory.positions[:, :2], ring_truth()[:, :2, 2]) == pytest.approx(metrics["ate_rmse_after_m"], rel=1e-6)
     assert (out / "before_after.png").stat().st_size > 0 and "before_after.png" in (out / "report.md").read_text()
 
 
 def test_ground_truth_as_xytheta_lines_or_a_noise_free_graph(cli, ring_file: Path, tmp_path: Path) -> None:
-    params = lie.se2_parameters(ring_truth())
+    params = geometry.se2_parameters(ring_truth())
     lines = tmp_path / "gt.txt"
     lines.write_text("\n".join(" ".join(f"{v:.12g}" for v in row) for row in params) + "\n")
     noise_free = tmp_path / "gt.g2o"
@@ -61,7 +66,7 @@ def test_ground_truth_as_xytheta_lines_or_a_noise_free_graph(cli, ring_file: Pat
 
 def _noise_free_ring() -> str:
     graph = ring_graph()
-    exact = lie.relative(ring_truth()[graph.sources], ring_truth()[graph.targets])
+    exact = geometry.relative(ring_truth()[graph.sources], ring_truth()[graph.targets])
     return format_g2o(replace(graph, measurements=exact))
 
 
@@ -70,7 +75,7 @@ def test_isam_format_and_isam2_mode(cli, tmp_path: Path) -> None:
     rows = []
     for s, t, m, info in zip(graph.sources, graph.targets, graph.measurements, graph.information):
         root = np.linalg.cholesky(info).T  # upper-triangular square root, as iSAM stores
-        numbers = [*lie.se2_parameters(m), *root[np.triu_indices(3)]]
+        numbers = [*geometry.se2_parameters(m), *root[np.triu_indices(3)]]
         rows.append(f"EDGE2 {s} {t} " + " ".join(repr(float(v)) for v in numbers))
     path = tmp_path / "ring.txt"
     path.write_text("\n".join(rows) + "\n")
@@ -100,7 +105,7 @@ def test_gnc_rejects_the_false_closures_and_keeps_the_true_ones() -> None:
 
 def test_outliers_command_writes_table_and_plot(cli, ring_file: Path, tmp_path: Path) -> None:
     truth_file = tmp_path / "truth.tum"
-    truth_file.write_text(format_tum(np.arange(120.0), ring_truth()))
+    write_tum(truth_file, PoseFile(np.arange(120.0), geometry.planar_to_spatial(ring_truth())))
     out = tmp_path / "study"
     code, stdout, err = cli(
         "outliers", ring_file, "--ground-truth", truth_file, "--rates", "0.2", "--methods", "none", "dcs", "gnc",
@@ -173,3 +178,30 @@ def test_bad_inputs_fail_in_one_line(cli, ring_file: Path, tmp_path: Path) -> No
     line = _one_line_error(*cli("outliers", ring_file, "--ground-truth", tum, "--ground-truth", tum)[::2])
     assert "--ground-truth: 2 files for 1 graphs" in line
     assert "--rates: 1.0 is not in [0, 1)" in _one_line_error(*cli("outliers", ring_file, "--rates", "1")[::2])
+
+
+def test_trajectory_files_by_column_count(tmp_path: Path) -> None:
+    files = {
+        "gt.tum": "# t x y z qx qy qz qw\n1.5 1 2 3 0 0 0 1\n2.5 1 2 4 0 0 1 0\n",
+        "xy.txt": "0 0 0\n1 0 1.5707963267948966\n",
+        "k.txt": "1 0 0 5 0 1 0 6 0 0 1 7\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    tum, kind = read_trajectory(tmp_path / "gt.tum")
+    assert kind == "tum" and tum.timestamps.tolist() == [1.5, 2.5]
+    np.testing.assert_allclose(tum.poses[1, :3, :3], np.diag([-1.0, -1.0, 1.0]), atol=1e-12)
+    planar, kind = read_trajectory(tmp_path / "xy.txt")
+    assert kind == "xytheta" and planar.positions[1].tolist() == [1.0, 0.0, 0.0]
+    np.testing.assert_allclose(planar.poses[1, :2, :2], [[0, -1], [1, 0]], atol=1e-12)
+    kitti, kind = read_trajectory(tmp_path / "k.txt")
+    assert kind == "kitti" and kitti.positions[0].tolist() == [5.0, 6.0, 7.0]
+    for text, message in [
+        ("1 2 3 4 5\n", "t.txt:1: 5 columns"),
+        ("1 2 3\n1 2\n", "t.txt:2: expected 3 numbers (x y theta), got 2"),
+        ("1 2 x\n", "t.txt:1: not a number"),
+        ("# nothing\n", "t.txt: no poses in the file"),
+    ]:
+        (tmp_path / "t.txt").write_text(text)
+        with pytest.raises(DataError, match=re.escape(message)):
+            read_trajectory(tmp_path / "t.txt")

@@ -1,6 +1,4 @@
-"""Pose-graph and trajectory text formats, parsed from and formatted to lines of text.
-
-Graphs:
+"""Pose-graph text formats, parsed from and formatted to lines of text.
 
 - **g2o** (Kümmerle et al., ICRA 2011): ``VERTEX_SE2 id x y theta``,
   ``EDGE_SE2 i j x y theta`` + the 6 upper-triangle entries of the information matrix,
@@ -15,10 +13,8 @@ Graphs:
 
 Landmark records of either format (``LANDMARK``, ``POINT3``, ``VERTEX_XY``, ...) are
 counted and skipped: this is a pose-graph reader. Anything else is an error naming the
-file and line.
-
-Trajectories: TUM ``t x y z qx qy qz qw``; ``x y theta`` per line (as GTSAM's
-``ISAM2_GT_city10000.txt``); KITTI's 12 numbers of a row-major 3x4 matrix per line.
+file and line. (Trajectory files are read by :mod:`slamfront.formats.poses` and
+:mod:`slamfront.posegraph.io`.)
 """
 
 from __future__ import annotations
@@ -29,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, make_graph
 
@@ -74,28 +70,28 @@ class _Record:
 
 
 def _g2o_se2_vertex(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, None]:
-    return lie.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), None
+    return geometry.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), None
 
 
 def _g2o_se3_vertex(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, None]:
-    return lie.se3_from_quaternion(numbers[:, :3], _quaternion_rows(numbers[:, 3:7], lines, name)), None
+    return geometry.poses_from_quaternions(numbers[:, :3], _quaternion_rows(numbers[:, 3:7], lines, name)), None
 
 
 def _g2o_se2_edge(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    return lie.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), _upper_to_symmetric(numbers[:, 3:], 3)
+    return geometry.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), _upper_to_symmetric(numbers[:, 3:], 3)
 
 
 def _g2o_se3_edge(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    transforms = lie.se3_from_quaternion(numbers[:, :3], _quaternion_rows(numbers[:, 3:7], lines, name))
+    transforms = geometry.poses_from_quaternions(numbers[:, :3], _quaternion_rows(numbers[:, 3:7], lines, name))
     return transforms, _upper_to_symmetric(numbers[:, 7:], 6)
 
 
 def _isam_2d_edge(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    return lie.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), _upper_to_square_root_information(numbers[:, 3:], 3)
+    return geometry.se2(numbers[:, 0], numbers[:, 1], numbers[:, 2]), _upper_to_square_root_information(numbers[:, 3:], 3)
 
 
 def _isam_3d_edge(numbers: np.ndarray, lines: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    transforms = lie.se3_from_euler(numbers[:, :3], numbers[:, 3:6])
+    transforms = geometry.se3_from_euler(numbers[:, :3], numbers[:, 3:6])
     return transforms, _upper_to_square_root_information(numbers[:, 6:], 6)
 
 
@@ -286,18 +282,18 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     upper = np.triu_indices(k)
     if graph.dim == 2:
         if poses is not None:
-            params = lie.se2_parameters(poses)
+            params = geometry.se2_parameters(poses)
             out += [f"VERTEX_SE2 {int(i)} {_fmt(p)}" for i, p in zip(graph.ids, params)]
-        params = lie.se2_parameters(graph.measurements)
+        params = geometry.se2_parameters(graph.measurements)
         out += [
             f"EDGE_SE2 {int(s)} {int(t)} {_fmt(p)} {_fmt(info[upper])}"
             for s, t, p, info in zip(graph.sources, graph.targets, params, graph.information)
         ]
     else:
         if poses is not None:
-            translation, quaternion = lie.se3_to_quaternion(poses)
+            translation, quaternion = poses[:, :3, 3], geometry.quaternions_of(poses)
             out += [f"VERTEX_SE3:QUAT {int(i)} {_fmt(t)} {_fmt(q)}" for i, t, q in zip(graph.ids, translation, quaternion)]
-        translation, quaternion = lie.se3_to_quaternion(graph.measurements)
+        translation, quaternion = graph.measurements[:, :3, 3], geometry.quaternions_of(graph.measurements)
         out += [
             f"EDGE_SE3:QUAT {int(s)} {int(t)} {_fmt(tr)} {_fmt(q)} {_fmt(info[upper])}"
             for s, t, tr, q, info in zip(graph.sources, graph.targets, translation, quaternion, graph.information)
@@ -305,76 +301,3 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     if len(graph.fixed):
         out.append("FIX " + " ".join(str(int(v)) for v in graph.fixed))
     return "\n".join(out) + "\n"
-
-
-@dataclass(frozen=True)
-class ParsedTrajectory:
-    """Poses read from a trajectory file.
-
-    :ivar stamps: (N,) timestamps (TUM) or line indices 0..N-1 (the other formats).
-    :ivar poses: (N, 3, 3) planar poses (``x y theta``) or (N, 4, 4) (TUM, KITTI).
-    :ivar format: ``tum``, ``xytheta`` or ``kitti``.
-    """
-
-    stamps: np.ndarray
-    poses: np.ndarray
-    format: str
-
-
-_TRAJECTORY_COLUMNS = {8: "tum", 3: "xytheta", 12: "kitti"}
-
-
-def parse_trajectory(lines: Iterable[str], name: str = "trajectory") -> ParsedTrajectory:
-    """Parse TUM (8 columns), ``x y theta`` (3) or KITTI (12) lines; ``#`` starts a comment.
-
-    :raises CoreError: naming the file and line of a malformed row.
-    """
-    values: list[list[float]] = []
-    columns = 0
-    for number, text in enumerate(lines, start=1):
-        tokens = text.split("#", 1)[0].replace(",", " ").split()
-        if not tokens:
-            continue
-        if not columns:
-            columns = len(tokens)
-            if columns not in _TRAJECTORY_COLUMNS:
-                raise CoreError(
-                    f"{name}:{number}: {columns} columns; expected 8 (TUM: t x y z qx qy qz qw), "
-                    "3 (x y theta) or 12 (KITTI 3x4 matrix)"
-                )
-        elif len(tokens) != columns:
-            raise CoreError(f"{name}:{number}: {len(tokens)} columns, but the file started with {columns}")
-        row = _numbers(tokens, name, number, _TRAJECTORY_COLUMNS[columns])
-        if not all(np.isfinite(row)):
-            raise CoreError(f"{name}:{number}: non-finite number")
-        values.append(row)
-    if not values:
-        raise CoreError(f"{name}: no poses found")
-    array = np.asarray(values)
-    kind = _TRAJECTORY_COLUMNS[columns]
-    index = np.arange(len(array), dtype=np.float64)
-    if kind == "tum":
-        norms = np.linalg.norm(array[:, 4:8], axis=1)
-        if np.any(norms < 1e-12):
-            raise CoreError(f"{name}: row {int(np.argmax(norms < 1e-12)) + 1} has a zero quaternion")
-        return ParsedTrajectory(array[:, 0].copy(), lie.se3_from_quaternion(array[:, 1:4], array[:, 4:8]), kind)
-    if kind == "xytheta":
-        return ParsedTrajectory(index, lie.se2(array[:, 0], array[:, 1], array[:, 2]), kind)
-    matrices = np.zeros((len(array), 4, 4))
-    matrices[:, :3, :] = array.reshape(-1, 3, 4)
-    matrices[:, 3, 3] = 1.0
-    return ParsedTrajectory(index, matrices, kind)
-
-
-def format_tum(stamps: np.ndarray, poses: np.ndarray) -> str:
-    """TUM lines ``t x y z qx qy qz qw``; planar poses are written at z = 0.
-
-    :param stamps: (N,) timestamps (or vertex ids when there is no time).
-    :param poses: (N, 3, 3) or (N, 4, 4).
-    """
-    poses = np.asarray(poses, dtype=np.float64)
-    if lie.dimension_of(poses) == 2:
-        poses = lie.planar_to_spatial(poses)
-    translation, quaternion = lie.se3_to_quaternion(poses)
-    lines = [f"{float(t):.9f} {_fmt(p)} {_fmt(q)}" for t, p, q in zip(np.asarray(stamps), translation, quaternion)]
-    return "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"

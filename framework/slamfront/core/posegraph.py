@@ -16,7 +16,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 
 
@@ -295,7 +295,7 @@ def compose_initial_poses(graph: PoseGraph, anchor: np.ndarray | None = None) ->
     poses = np.empty((graph.n_vertices, side, side))
     poses[order[0]] = np.eye(side) if anchor is None else anchor
     src, dst = graph.index_of(graph.sources), graph.index_of(graph.targets)
-    inverse_measurements = lie.inverse(graph.measurements)
+    inverse_measurements = geometry.invert(graph.measurements)
     for vertex in order[1:]:
         edge = parent_edge[vertex]
         if dst[edge] == vertex:
@@ -357,10 +357,10 @@ def random_false_closures(
     first, second = _distant_pairs(graph.n_vertices, n_false, min_separation, rng)
     translation = rng.uniform(-reach, reach, size=(n_false, d))
     if d == 2:
-        measurements = lie.se2(translation[:, 0], translation[:, 1], rng.uniform(-np.pi, np.pi, n_false))
+        measurements = geometry.se2(translation[:, 0], translation[:, 1], rng.uniform(-np.pi, np.pi, n_false))
     else:
         quaternions = rng.normal(size=(n_false, 4))
-        measurements = lie.se3_from_quaternion(translation, quaternions)
+        measurements = geometry.poses_from_quaternions(translation, quaternions)
     corrupted = graph.with_edges(
         graph.ids[first], graph.ids[second], measurements, np.repeat(information[None], n_false, axis=0)
     )

@@ -12,20 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
-from slamfront.core.graph_files import (
-    RECORDS,
-    GraphFormat,
-    ParsedGraph,
-    ParsedTrajectory,
-    format_g2o,
-    format_tum,
-    parse_graph,
-    parse_trajectory,
-)
+from slamfront.core.graph_files import RECORDS, GraphFormat, ParsedGraph, format_g2o, parse_graph
 from slamfront.core.posegraph import PoseGraph, compose_initial_poses
 from slamfront.errors import DataError
+from slamfront.formats import poses as pose_files
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import FrameInfo, PoseGraphState, RelativePose
 
@@ -121,41 +113,86 @@ def _numeric(token: str) -> bool:
     return True
 
 
+def read_xytheta(path: Path) -> pose_files.Trajectory:
+    """``x y theta`` lines (planar poses, row i = vertex i), as planar poses embedded at z = 0."""
+    rows = []
+    for number, fields in pose_files.numbered_fields(path):
+        if len(fields) != 3:
+            raise DataError(f"{path}:{number}: expected 3 numbers (x y theta), got {len(fields)}")
+        try:
+            rows.append([float(f) for f in fields])
+        except ValueError:
+            raise DataError(f"{path}:{number}: not a number in {' '.join(fields)!r}") from None
+    if not rows:
+        raise DataError(f"{path}: no poses in the file")
+    values = np.array(rows)
+    if not np.all(np.isfinite(values)):
+        raise DataError(f"{path}: non-finite value")
+    planar = geometry.se2(values[:, 0], values[:, 1], values[:, 2])
+    return pose_files.Trajectory(np.arange(len(values), dtype=np.float64), geometry.planar_to_spatial(planar))
+
+
+_TRAJECTORY_READERS = {
+    8: ("tum", pose_files.read_tum),
+    7: ("pose lines", pose_files.read_pose_lines),
+    12: ("kitti", pose_files.read_kitti),
+    3: ("xytheta", read_xytheta),
+}
+"""Trajectory formats by their number of columns."""
+
+
+def read_trajectory(path: Path) -> tuple[pose_files.Trajectory, str]:
+    """A trajectory file of any format in :data:`_TRAJECTORY_READERS` and its format name.
+
+    :raises DataError: an unknown column count, or a malformed row (file:line).
+    """
+    first = next(iter(pose_files.numbered_fields(path)), None)
+    if first is None:
+        raise DataError(f"{path}: no poses in the file")
+    number, fields = first
+    if len(fields) not in _TRAJECTORY_READERS:
+        raise DataError(
+            f"{path}:{number}: {len(fields)} columns; expected 8 (TUM: t x y z qx qy qz qw), 7 (x y z qx qy qz qw), "
+            "3 (x y theta) or 12 (KITTI 3x4 matrix)"
+        )
+    name, reader = _TRAJECTORY_READERS[len(fields)]
+    return reader(path), name
+
+
 def read_ground_truth(path: Path, graph: PoseGraph) -> np.ndarray:
     """True positions (N, d) of ``graph``'s vertices, in the order of ``graph.ids``.
 
-    Accepts a trajectory (TUM lines, ``x y theta`` lines, KITTI rows) or a noise-free
-    graph file in any supported format, whose poses come from composing its odometry.
-    Trajectory rows match vertex ids by line index (``x y theta``, KITTI) or, for TUM,
-    by timestamp when the timestamps are the vertex ids, else by order when there is one
-    row per vertex.
+    Accepts a trajectory (TUM lines, ``x y theta`` lines, ``x y z qx qy qz qw`` lines,
+    KITTI rows) or a noise-free graph file in any supported format, whose poses come from
+    composing its odometry. Rows match vertex ids by line index or, for TUM, by timestamp
+    when the timestamps are the vertex ids, else by order when there is one row per vertex.
 
     :raises DataError: the file does not cover the graph's vertices, or is malformed.
     """
     path = Path(path)
     lines = read_lines(path)
-    try:
-        if _is_graph_text(lines):
+    if _is_graph_text(lines):
+        try:
             truth = parse_graph(lines, str(path)).graph
             poses = compose_initial_poses(truth)
-            missing = ~np.isin(graph.ids, truth.ids)
-            if np.any(missing):
-                raise DataError(f"{path}: ground-truth graph has no vertex {int(graph.ids[np.argmax(missing)])}")
-            positions = poses[truth.index_of(graph.ids), : truth.dim, truth.dim]
-        else:
-            positions = _trajectory_positions(parse_trajectory(lines, str(path)), graph, path)
-    except CoreError as exc:
-        raise DataError(str(exc)) from None
-    if positions.shape[1] < graph.dim:
-        raise DataError(f"{path}: ground truth is 2-D but {graph.name} is a 3-D graph")
-    return positions[:, : graph.dim]
+        except CoreError as exc:
+            raise DataError(str(exc)) from None
+        missing = ~np.isin(graph.ids, truth.ids)
+        if np.any(missing):
+            raise DataError(f"{path}: ground-truth graph has no vertex {int(graph.ids[np.argmax(missing)])}")
+        if truth.dim < graph.dim:
+            raise DataError(f"{path}: ground truth is 2-D but {graph.name} is a 3-D graph")
+        return poses[truth.index_of(graph.ids), : graph.dim, truth.dim]
+    trajectory, kind = read_trajectory(path)
+    if kind == "xytheta" and graph.dim == 3:
+        raise DataError(f"{path}: ground truth is 2-D (x y theta) but {graph.name} is a 3-D graph")
+    return _trajectory_positions(trajectory, kind, graph, path)[:, : graph.dim]
 
 
-def _trajectory_positions(trajectory: ParsedTrajectory, graph: PoseGraph, path: Path) -> np.ndarray:
-    d = lie.dimension_of(trajectory.poses)
-    positions = trajectory.poses[:, :d, d]
-    stamps = trajectory.stamps
-    if trajectory.format == "tum":
+def _trajectory_positions(trajectory: pose_files.Trajectory, kind: str, graph: PoseGraph, path: Path) -> np.ndarray:
+    positions = trajectory.positions
+    stamps = trajectory.timestamps
+    if kind == "tum":
         as_ids = np.round(stamps).astype(np.int64)
         if np.allclose(stamps, as_ids) and np.all(np.isin(graph.ids, as_ids)):
             _, first = np.unique(as_ids, return_index=True)
@@ -187,9 +224,10 @@ def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
     return write_text(path, format_g2o(graph, poses))
 
 
-def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray, stamps: np.ndarray | None = None) -> Path:
-    """Poses as a TUM trajectory; timestamps are the vertex ids unless given."""
-    return write_text(path, format_tum(graph.ids.astype(np.float64) if stamps is None else stamps, poses))
+def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
+    """Poses as a TUM trajectory whose timestamps are the vertex ids (planar ones at z = 0)."""
+    spatial = geometry.planar_to_spatial(poses) if graph.dim == 2 else np.asarray(poses)
+    return pose_files.write_tum(path, pose_files.Trajectory(graph.ids.astype(np.float64), spatial))
 
 
 @dataclass(frozen=True)
@@ -219,7 +257,7 @@ class OdometryTable:
             if found is None:
                 raise DataError(f"{self.path}: no RelativePose from frame {previous[0]} to frame {current[0]}")
             return found
-        return lie.relative(self._pose(*previous), self._pose(*current)), None
+        return geometry.relative(self._pose(*previous), self._pose(*current)), None
 
     def _pose(self, index: int, stamp: float) -> np.ndarray:
         if self.by_index is not None:
@@ -236,7 +274,7 @@ class OdometryTable:
 
 
 def _spatial(poses: np.ndarray) -> np.ndarray:
-    return lie.planar_to_spatial(poses) if lie.dimension_of(poses) == 2 else poses
+    return geometry.planar_to_spatial(poses) if geometry.dimension_of(poses) == 2 else poses
 
 
 def read_odometry(path: Path) -> OdometryTable:
@@ -255,15 +293,14 @@ def read_odometry(path: Path) -> OdometryTable:
             relative[(message.frame_from, message.frame_to)] = (message.transform, message.information)
         return OdometryTable(path, relative=relative)
     lines = read_lines(path)
-    try:
-        if _is_graph_text(lines):
+    if _is_graph_text(lines):
+        try:
             graph = parse_graph(lines, str(path)).graph
             poses = _spatial(compose_initial_poses(graph))
-            return OdometryTable(path, by_index=dict(zip(graph.ids.tolist(), poses)))
-        trajectory = parse_trajectory(lines, str(path))
-    except CoreError as exc:
-        raise DataError(str(exc)) from None
-    poses = _spatial(trajectory.poses)
-    if trajectory.format == "tum":
-        return OdometryTable(path, stamps=trajectory.stamps, stamped=poses)
-    return OdometryTable(path, by_index=dict(enumerate(poses)))
+        except CoreError as exc:
+            raise DataError(str(exc)) from None
+        return OdometryTable(path, by_index=dict(zip(graph.ids.tolist(), poses)))
+    trajectory, kind = read_trajectory(path)
+    if kind == "tum":
+        return OdometryTable(path, stamps=trajectory.timestamps, stamped=trajectory.poses)
+    return OdometryTable(path, by_index=dict(enumerate(trajectory.poses)))

@@ -22,7 +22,7 @@ import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, check_connected, initial_poses, spanning_tree
 from slamfront.errors import DataError
@@ -155,9 +155,9 @@ class OptimizationResult:
 def to_gtsam_poses(matrices: np.ndarray) -> list[gtsam.Pose2] | list[gtsam.Pose3]:
     """(N, 3, 3) or (N, 4, 4) rigid transforms as GTSAM poses (rotations re-normalised)."""
     matrices = np.asarray(matrices, dtype=np.float64)
-    if lie.dimension_of(matrices) == 2:
-        return [gtsam.Pose2(x, y, theta) for x, y, theta in lie.se2_parameters(matrices).tolist()]
-    translation, quaternion = lie.se3_to_quaternion(matrices)
+    if geometry.dimension_of(matrices) == 2:
+        return [gtsam.Pose2(x, y, theta) for x, y, theta in geometry.se2_parameters(matrices).tolist()]
+    translation, quaternion = matrices[:, :3, 3], geometry.quaternions_of(matrices)
     return [
         gtsam.Pose3(gtsam.Rot3.Quaternion(qw, qx, qy, qz), gtsam.Point3(x, y, z))
         for (x, y, z), (qx, qy, qz, qw) in zip(translation.tolist(), quaternion.tolist())
@@ -173,9 +173,9 @@ def poses_from_values(values: gtsam.Values, dim: int) -> np.ndarray:
     """(N, d+1, d+1) poses of every key in ``values``, in key order."""
     if dim == 2:
         params = gtsam.utilities.extractPose2(values)
-        return lie.se2(params[:, 0], params[:, 1], params[:, 2])
+        return geometry.se2(params[:, 0], params[:, 1], params[:, 2])
     flat = gtsam.utilities.extractPose3(values)
-    return lie.se3(flat[:, 9:12], flat[:, :9].reshape(-1, 3, 3))
+    return geometry.se3(flat[:, 9:12], flat[:, :9].reshape(-1, 3, 3))
 
 
 def to_values(ids: np.ndarray, poses: np.ndarray) -> gtsam.Values:
@@ -445,7 +445,7 @@ def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationRes
         by_step[when].append(edge)
     session = Isam2Session(graph.dim, options)
     session.name = graph.name
-    inverse_measurements = lie.inverse(graph.measurements)
+    inverse_measurements = geometry.invert(graph.measurements)
     for when, vertex in enumerate(order.tolist()):
         key = int(graph.ids[vertex])
         if when == 0:

@@ -6,14 +6,16 @@ from collections.abc import Mapping, Sequence
 from functools import cached_property
 from typing import Literal
 
+import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import Backend, DataError, Frame, Plugin, PluginConfig, PluginError, StageInputs
-from slamfront.core import lie
+from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, make_graph
 from slamfront.data import DataPath
+from slamfront.local_features import LocalFeatureExtractor
 from slamfront.messages import Features, LoopConstraint, LoopResult, Message, PoseGraphState, RelativePose, Trajectory
 from slamfront.posegraph.io import OdometryTable, read_odometry
 from slamfront.posegraph.solver import (
@@ -24,7 +26,7 @@ from slamfront.posegraph.solver import (
     optimize,
     prior_factor,
 )
-from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, orb_features, verify
+from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, verify
 
 
 class Sigmas(PluginConfig):
@@ -104,6 +106,10 @@ class GtsamPoseGraph(Backend):
         self._result: dict[str, float | int | str | bool] = {}
 
     @cached_property
+    def _extractor(self) -> LocalFeatureExtractor:
+        return LocalFeatureExtractor(self.config.pnp.descriptor, max_features=self.config.pnp.n_features)
+
+    @cached_property
     def _odometry_table(self) -> OdometryTable:
         assert self.config.odometry_file is not None
         return read_odometry(self.config.odometry_file)
@@ -154,7 +160,7 @@ class GtsamPoseGraph(Backend):
             noise = self._rng.normal(size=6) * np.r_[
                 [self.config.odometry_noise.translation_m] * 3, [np.deg2rad(self.config.odometry_noise.rotation_deg)] * 3
             ]
-            return lie.relative(previous.pose, frame.pose) @ lie.exp_se3(noise), sigmas.information()
+            return geometry.relative(previous.pose, frame.pose) @ geometry.exp_se3(noise), sigmas.information()
         if self.config.odometry == "file":
             motion, information = self._odometry_table.between(
                 (previous.index, previous.timestamp), (frame.index, frame.timestamp)
@@ -177,7 +183,9 @@ class GtsamPoseGraph(Backend):
             if isinstance(message, Features) and message.keypoints is not None and message.descriptors is not None:
                 keypoints, descriptors = message.keypoints, message.descriptors
         if keypoints is None or descriptors is None:
-            keypoints, descriptors = orb_features(frame.image, self.config.pnp.n_features)
+            grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
+            features = self._extractor.extract(grey)
+            keypoints, descriptors = features.keypoints, features.descriptors
         self._features[frame.index] = FrameFeatures(keypoints, descriptors, lift(keypoints, frame.depth, frame.camera))
 
     def _close_loop(self, frame: Frame, match: int, relative: list[RelativePose]) -> LoopConstraint:
@@ -186,7 +194,7 @@ class GtsamPoseGraph(Backend):
             for message in relative:
                 if {message.frame_from, message.frame_to} == {match, frame.index}:
                     forward = message.frame_from == match
-                    transform = message.transform if forward else lie.inverse(message.transform)
+                    transform = message.transform if forward else geometry.invert(message.transform)
                     if message.information is not None and forward:
                         information = message.information
                     inliers, reason = message.inliers, f"{message.method or 'stage'} relative pose"

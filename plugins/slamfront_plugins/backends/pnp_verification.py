@@ -3,7 +3,8 @@
 The matched (older) frame's keypoints are lifted to 3-D with its depth image; the
 query frame's keypoints matched to them give 2-D/3-D correspondences; RANSAC PnP
 (``cv2.solvePnPRansac``) then a Levenberg-Marquardt refinement on the inliers give the
-query camera's pose in the matched camera's frame. Functions over arrays only: the
+query camera's pose in the matched camera's frame. Features come from
+:mod:`slamfront.local_features` (any descriptor type); functions over arrays only: the
 back end calls them and owns the bookkeeping. Swapping in another matcher means
 replacing :func:`match_features`.
 """
@@ -17,13 +18,17 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, PluginConfig
-from slamfront.core import lie
+from slamfront.core import geometry
+from slamfront.local_features import DescriptorType
 
 
 class PnPConfig(PluginConfig):
     """PnP verification settings."""
 
-    n_features: int = Field(1000, ge=10, description="ORB keypoints per frame (when the descriptor gives none)")
+    descriptor: DescriptorType = Field(
+        "orb", description="local features computed per frame when the descriptor stage gives none"
+    )
+    n_features: int = Field(1000, ge=10, description="keypoints per frame, strongest first")
     ratio: float = Field(0.8, gt=0, le=1, description="Lowe's ratio test on the two nearest descriptors")
     reprojection_px: float = Field(3.0, gt=0, description="RANSAC inlier threshold, pixels")
     iterations: int = Field(500, ge=10, description="RANSAC iterations")
@@ -56,15 +61,6 @@ class Verification:
     inliers: int
     matches: int
     reason: str
-
-
-def orb_features(image: np.ndarray, n_features: int) -> tuple[np.ndarray, np.ndarray]:
-    """ORB keypoints (N, 2) float32 and descriptors (N, 32) uint8 of an RGB or grey image."""
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    keypoints, descriptors = cv2.ORB_create(nfeatures=n_features).detectAndCompute(grey, None)
-    if descriptors is None:
-        return np.empty((0, 2), np.float32), np.empty((0, 32), np.uint8)
-    return np.array([k.pt for k in keypoints], dtype=np.float32).reshape(-1, 2), descriptors
 
 
 def lift(keypoints: np.ndarray, depth: np.ndarray | None, camera: Camera) -> np.ndarray:
@@ -118,8 +114,8 @@ def verify(reference: FrameFeatures, query: FrameFeatures, camera: Camera, confi
     chosen = inliers.ravel()
     rvec, tvec = cv2.solvePnPRefineLM(object_points[chosen], image_points[chosen], matrix, None, rvec, tvec)
     rotation, _ = cv2.Rodrigues(rvec)
-    query_from_reference = lie.se3(tvec.ravel(), rotation)  # maps reference-camera points into the query camera
-    transform = lie.inverse(query_from_reference)
+    query_from_reference = geometry.se3(tvec.ravel(), rotation)  # maps reference-camera points into the query camera
+    transform = geometry.invert(query_from_reference)
     distance = float(np.linalg.norm(transform[:3, 3]))
     if distance > config.max_translation_m:
         return Verification(None, n_inliers, len(pairs), f"PnP motion {distance:.1f} m exceeds {config.max_translation_m} m")
