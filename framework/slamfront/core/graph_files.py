@@ -137,11 +137,12 @@ def _numbers(tokens: list[str], name: str, line: int, tag: str) -> list[float]:
     try:
         return [float(token) for token in tokens]
     except ValueError:
-        bad = next(t for t in tokens if not _is_float(t))
+        bad = next(t for t in tokens if not is_number(t))
         raise CoreError(f"{name}:{line}: {tag}: {bad!r} is not a number") from None
 
 
-def _is_float(token: str) -> bool:
+def is_number(token: str) -> bool:
+    """True when ``float(token)`` parses."""
     try:
         float(token)
     except ValueError:

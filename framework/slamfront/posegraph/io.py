@@ -14,7 +14,7 @@ import numpy as np
 
 from slamfront.core import geometry
 from slamfront.core.errors import CoreError
-from slamfront.core.graph_files import RECORDS, GraphFormat, ParsedGraph, format_g2o, parse_graph
+from slamfront.core.graph_files import RECORDS, GraphFormat, ParsedGraph, format_g2o, is_number, parse_graph
 from slamfront.core.posegraph import PoseGraph, compose_initial_poses
 from slamfront.errors import DataError
 from slamfront.formats import poses as pose_files
@@ -101,16 +101,8 @@ def _is_graph_text(lines: list[str]) -> bool:
     for line in lines:
         tokens = line.split("#", 1)[0].split()
         if tokens:
-            return tokens[0] in RECORDS or not _numeric(tokens[0])
+            return tokens[0] in RECORDS or not is_number(tokens[0])
     return False
-
-
-def _numeric(token: str) -> bool:
-    try:
-        float(token)
-    except ValueError:
-        return False
-    return True
 
 
 def read_xytheta(path: Path) -> pose_files.Trajectory:
