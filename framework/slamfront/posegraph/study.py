@@ -165,9 +165,11 @@ def plot(rows: Sequence[StudyRow], path: Path) -> Path:
     for ax, graph in zip(axes[0], graphs):
         mine = [row for row in rows if row.graph == graph]
         use_ate = all(row.ate_m is not None for row in mine)
-        for method in dict.fromkeys(row.method for row in mine):
+        for k, method in enumerate(dict.fromkeys(row.method for row in mine)):
             points = sorted((row.rate, row.ate_m if use_ate else row.deviation_m) for row in mine if row.method == method)
-            ax.plot([100 * p[0] for p in points], [max(p[1], 1e-4) for p in points], marker="o", label=method)
+            # methods that all keep the clean ATE overlap: distinct markers keep each visible
+            ax.plot([100 * p[0] for p in points], [max(p[1], 1e-4) for p in points], marker="osD^vP*X"[k % 8],
+                    markersize=9 - k, linewidth=1.2, alpha=0.85, label=method)
         clean = _clean_ate(rows, graph) if use_ate else None
         if clean:
             ax.axhline(1.1 * clean, color="0.4", linestyle="--", linewidth=0.8, label="clean ATE + 10 %")
