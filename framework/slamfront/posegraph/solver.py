@@ -21,6 +21,7 @@ from typing import Any, Literal
 import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from tqdm import tqdm
 
 from slamfront.core import geometry
 from slamfront.core.errors import CoreError
@@ -446,7 +447,8 @@ def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationRes
     session = Isam2Session(graph.dim, options)
     session.name = graph.name
     inverse_measurements = geometry.invert(graph.measurements)
-    for when, vertex in enumerate(order.tolist()):
+    progress = tqdm(order.tolist(), desc="iSAM2", unit="vertex", leave=False, disable=None)  # shown on a terminal
+    for when, vertex in enumerate(progress):
         key = int(graph.ids[vertex])
         if when == 0:
             guess = initial[vertex]
