@@ -17,6 +17,7 @@ from slamfront.formats.poses import Trajectory as PoseFile
 from slamfront.formats.poses import write_tum
 from slamfront.imageio import read_depth, read_image
 from slamfront.local_features import LocalFeatureExtractor
+from slamfront.matching import Matcher, resolve_max_distance
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import LoopConstraint, LoopResult, PoseGraphState, RelativePose, Trajectory
 from slamfront.recipe import build_pipeline, load_recipe
@@ -34,6 +35,12 @@ def _features(image: np.ndarray, depth: np.ndarray | None, camera: Camera) -> Fr
     return FrameFeatures(features.keypoints, features.descriptors, lift(features.keypoints, depth, camera))
 
 
+def _verify(reference: FrameFeatures, query: FrameFeatures, camera: Camera):  # type: ignore[no-untyped-def]
+    config = PnPConfig()
+    matcher = Matcher(config.matching, "hamming", resolve_max_distance(config.matching, "orb"))
+    return verify(reference, query, camera, matcher, config)
+
+
 def _error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     difference = geometry.relative(truth, estimate)
     return float(np.linalg.norm(difference[:3, 3])), geometry.rotation_angle_deg(difference)
@@ -48,7 +55,7 @@ def test_pnp_on_real_rgbd_frames(shared_data: Path) -> None:
         _features(read_image(root / f"color/{i:05d}.jpg"), read_depth(root / f"depth/{i:05d}.png", 1000.0), camera)
         for i in (0, 4)
     ]
-    result = verify(frames[0], frames[1], camera, PnPConfig())
+    result = _verify(frames[0], frames[1], camera)
     assert result.transform is not None and result.inliers > 100, result.reason
     translation, rotation = _error(result.transform, geometry.relative(poses[0], poses[4]))
     assert translation < 0.01 and rotation < 0.5  # the true motion is 10 cm and 3 degrees
@@ -60,11 +67,11 @@ def test_pnp_on_synthetic_revisits_and_refuses_a_wrong_place() -> None:
     ))
     frames = {f.index: f for f in source.frames() if f.index in (9, 21, 3)}
     features = {k: _features(f.image, f.depth, f.camera) for k, f in frames.items()}
-    result = verify(features[9], features[21], source.camera, PnPConfig())
+    result = _verify(features[9], features[21], source.camera)
     assert result.transform is not None, result.reason
     translation, rotation = _error(result.transform, geometry.relative(frames[9].pose, frames[21].pose))
     assert translation < 0.1 and rotation < 2.0  # lap 2 drives 0.3 m to the side, turned 2 degrees
-    wrong = verify(features[3], features[21], source.camera, PnPConfig())
+    wrong = _verify(features[3], features[21], source.camera)
     assert wrong.transform is None and "matches" in wrong.reason
 
 

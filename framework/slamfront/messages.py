@@ -334,6 +334,91 @@ class LoopTruth(Message):
     """(M,) int64 correct matches of each query, by row."""
 
 
+# --- localization ----------------------------------------------------------------------
+
+
+def _pose_in_map(suffix: str, pose: np.ndarray | None, stamp_ns: int) -> list[tuple[str, Any]]:
+    """``[(suffix, foxglove.PoseInFrame)]`` for a known pose, else nothing."""
+    if pose is None:
+        return []
+    from slamfront.mcaplog import foxglove  # lazy: the log package imports this module
+
+    return [(suffix, foxglove.pose_in_frame(pose, stamp_ns))]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseEstimate(Message):
+    """A localizer's answer for one frame: the keyframe it recognised and the pose it infers.
+
+    ``keyframe`` is the frame index of the chosen keyframe, or -1 when the frame could
+    not be localized (``reason`` says why). ``pose`` is the estimated camera-to-world
+    transform: the keyframe's stored pose, or that pose corrected by PnP when
+    ``refined`` is true; ``keyframe_pose`` is the keyframe's pose either way, so one
+    run scores both.
+    """
+
+    schema_name: ClassVar[str] = "slamfront.PoseEstimate"
+    frame: int
+    keyframe: int
+    node: int = -1
+    """Position of the keyframe in the map (0 = first keyframe)."""
+    pose: np.ndarray | None = None
+    """(4, 4) estimated camera-to-world transform."""
+    keyframe_pose: np.ndarray | None = None
+    """(4, 4) the chosen keyframe's stored camera-to-world transform."""
+    inliers: int = 0
+    """Two-image matches with the chosen keyframe that survived RANSAC (the similarity)."""
+    second_inliers: int = 0
+    """The same for the best other keyframe (how ambiguous the answer is)."""
+    refined: bool = False
+    pnp_inliers: int = 0
+    candidates: np.ndarray | None = None
+    """(K,) int64 frame indices of the keyframes compared in full, most similar first."""
+    n_compared: int = 0
+    """Keyframes matched in full (all of them without pre-selection)."""
+    reason: str = ""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """The estimated pose as a ``PoseInFrame`` in ``map`` (suffix ``pose``)."""
+        return _pose_in_map("pose", self.pose, stamp_ns)
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeAdded(Message):
+    """A frame became a keyframe (a node of the topological map) during training."""
+
+    schema_name: ClassVar[str] = "slamfront.KeyframeAdded"
+    frame: int
+    node: int
+    pose: np.ndarray | None = None
+    """(4, 4) the keyframe's camera-to-world pose (from the source's ground truth)."""
+    n_features: int = 0
+    reason: str = ""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """The keyframe's pose as a ``PoseInFrame`` (suffix ``keyframe_pose``)."""
+        return _pose_in_map("keyframe_pose", self.pose, stamp_ns)
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeMap(Message):
+    """The whole keyframe map at the end of a run (frames and poses of its nodes)."""
+
+    schema_name: ClassVar[str] = "slamfront.KeyframeMap"
+    frames: np.ndarray
+    """(K,) int64 frame index of each keyframe, in node order."""
+    poses: np.ndarray | None = None
+    """(K, 4, 4) their camera-to-world poses, when known."""
+
+    def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
+        """All keyframe poses as one ``PosesInFrame`` (suffix ``keyframes``)."""
+        if self.poses is None or len(self.poses) == 0:
+            return []
+        from slamfront.mcaplog import foxglove
+
+        return [("keyframes", foxglove.poses_in_frame(self.poses, stamp_ns))]
+
+
 # --- geometry and the back end --------------------------------------------------------
 
 

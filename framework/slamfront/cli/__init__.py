@@ -15,6 +15,7 @@ import slamfront
 from slamfront.cli import (
     datasets_cmd,
     diff_cmd,
+    eval_cmd,
     inspect_cmd,
     optimize_cmd,
     outliers_cmd,
@@ -30,14 +31,14 @@ from slamfront.errors import SlamfrontError
 
 COMMANDS = (
     run_cmd, replay_cmd, sweep_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
-    datasets_cmd, optimize_cmd, outliers_cmd,
+    datasets_cmd, eval_cmd, optimize_cmd, outliers_cmd,
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slamfront",
-        description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins.",
+        description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins, evaluate.",
     )
     parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)

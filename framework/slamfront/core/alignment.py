@@ -1,11 +1,7 @@
-"""Aligning point sets and the absolute trajectory error (ATE), in 2-D or 3-D.
+"""Closed-form alignment of two point sets (Umeyama 1991; Horn 1987 for the rigid case).
 
-Umeyama, "Least-squares estimation of transformation parameters between two point
-patterns", IEEE TPAMI 13(4), 1991: the similarity (or rigid motion) ``dst ~ s R src + t``
-minimising the summed squared distances, in closed form (eqs. 38-42). Horn's 1987
-quaternion method gives the same rigid motion in 3-D; Umeyama's SVD form works in any
-dimension and guards against reflections. The ATE (Sturm et al., IROS 2012) is the RMSE
-of the positions after that alignment.
+Used to align an estimated trajectory to its ground truth before the absolute
+trajectory error is computed, since the two are expressed in arbitrary frames.
 """
 
 from __future__ import annotations
@@ -15,64 +11,50 @@ import numpy as np
 from slamfront.core.errors import CoreError
 
 
-def _points(array: np.ndarray, name: str) -> np.ndarray:
-    array = np.asarray(array, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] not in (2, 3):
-        raise CoreError(f"{name} must be an (N, 2) or (N, 3) array of positions, got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise CoreError(f"{name} has non-finite values")
-    return array
-
-
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
-    """The ``R, t, s`` minimising ``sum ||dst_i - (s R src_i + t)||^2``.
+    """The similarity ``dst ~ s * R @ src + t`` minimising the squared error (Umeyama 1991).
 
     :param src: (N, d) points, d = 2 or 3.
     :param dst: (N, d) corresponding points.
-    :param with_scale: estimate ``s`` (a similarity, for monocular trajectories);
-        otherwise ``s = 1`` (a rigid motion).
-    :returns: ``R`` (d, d) proper rotation, ``t`` (d,), ``s`` > 0.
-    :raises CoreError: shapes differ, fewer than 2 points, or ``src`` has no spread.
+    :param with_scale: estimate ``s`` (Sim(d)); otherwise ``s = 1`` (SE(d), Horn's problem).
+    :returns: ``R`` (d, d) proper rotation, ``t`` (d,), ``s``.
+    :raises CoreError: shapes differ, fewer than 2 points, or all source points coincide
+        (the rotation is then undetermined).
     """
-    src, dst = _points(src, "src"), _points(dst, "dst")
-    if src.shape != dst.shape:
-        raise CoreError(f"src {src.shape} and dst {dst.shape} must have the same shape")
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    if src.ndim != 2 or src.shape != dst.shape or src.shape[1] not in (2, 3):
+        raise CoreError(f"umeyama needs two (N, 2) or (N, 3) arrays of one shape, got {src.shape} and {dst.shape}")
     n, d = src.shape
     if n < 2:
-        raise CoreError(f"alignment needs at least 2 corresponding points, got {n}")
+        raise CoreError(f"umeyama needs at least 2 point pairs, got {n}")
     mean_src, mean_dst = src.mean(axis=0), dst.mean(axis=0)
-    centred_src, centred_dst = src - mean_src, dst - mean_dst
-    variance_src = float(np.mean(np.sum(centred_src**2, axis=1)))
+    src_c, dst_c = src - mean_src, dst - mean_dst
+    variance_src = float((src_c**2).sum() / n)
     if variance_src < 1e-18:
-        raise CoreError("alignment is undefined: all source points coincide")
-    covariance = centred_dst.T @ centred_src / n  # eq. 38
+        raise CoreError("umeyama: all source points coincide, the alignment is undetermined")
+    covariance = dst_c.T @ src_c / n  # eq. 38
     u, singular, vt = np.linalg.svd(covariance)
-    sign = np.ones(d)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # eq. 39: a reflection would fit better
-        sign[-1] = -1.0
-    rotation = u @ np.diag(sign) @ vt  # eq. 40
-    scale = float(np.sum(singular * sign) / variance_src) if with_scale else 1.0  # eq. 42
+    signs = np.ones(d)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # eq. 39: a reflection would fit better; forbid it
+        signs[-1] = -1.0
+    rotation = u @ np.diag(signs) @ vt  # eq. 40
+    scale = float((singular * signs).sum() / variance_src) if with_scale else 1.0  # eq. 42
     translation = mean_dst - scale * rotation @ mean_src  # eq. 41
     return rotation, translation, scale
 
 
-def transform_points(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """``s R p + t`` for each row ``p`` of (N, d) ``points``."""
+def apply(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """(N, d) points mapped by ``s * R @ p + t`` (a new array)."""
     return scale * np.asarray(points, dtype=np.float64) @ np.asarray(rotation).T + np.asarray(translation)
 
 
-def ate_rmse(estimate: np.ndarray, ground_truth: np.ndarray, with_scale: bool = False, align: bool = True) -> float:
-    """Absolute trajectory error: RMSE of positions after aligning ``estimate`` to ``ground_truth``.
+def ate_rmse(est: np.ndarray, gt: np.ndarray, with_scale: bool = False) -> float:
+    """Root-mean-square position error after aligning ``est`` (N, d) onto ``gt`` (N, d).
 
-    :param estimate: (N, d) estimated positions.
-    :param ground_truth: (N, d) true positions of the same poses (same units, metres).
-    :param with_scale: align with a similarity instead of a rigid motion.
-    :param align: False compares the positions as given (a shared, fixed frame).
-    :returns: RMSE in the units of ``ground_truth``.
+    The translational ATE of Sturm et al. 2012 (eq. 4.5 of seed 002) for already
+    associated positions.
     """
-    estimate, ground_truth = _points(estimate, "estimate"), _points(ground_truth, "ground_truth")
-    if estimate.shape != ground_truth.shape:
-        raise CoreError(f"estimate {estimate.shape} and ground truth {ground_truth.shape} must have the same shape")
-    if align:
-        estimate = transform_points(estimate, *umeyama(estimate, ground_truth, with_scale))
-    return float(np.sqrt(np.mean(np.sum((estimate - ground_truth) ** 2, axis=1))))
+    rotation, translation, scale = umeyama(est, gt, with_scale)
+    residual = apply(est, rotation, translation, scale) - np.asarray(gt, dtype=np.float64)
+    return float(np.sqrt((residual**2).sum(axis=1).mean()))

@@ -9,6 +9,7 @@ from __future__ import annotations
 from slamfront.evaluation.backend import BackendEvaluation
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.evaluation.frames import FrameOverview
+from slamfront.evaluation.localization import LocalizationEvaluation
 from slamfront.evaluation.loops import LoopClosureEvaluation
 from slamfront.evaluation.retrieval import DescriptorRetrieval
 from slamfront.plugin import Kind
@@ -21,6 +22,8 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
         chosen.append(DescriptorRetrieval())
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
+    if "localizer" in kinds:
+        chosen.append(LocalizationEvaluation())
     if "backend" in kinds:
         chosen.append(BackendEvaluation())
     return chosen

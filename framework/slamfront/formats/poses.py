@@ -9,9 +9,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 
@@ -133,3 +134,9 @@ def write_tum(path: Path, trajectory: Trajectory) -> Path:
         lines.append(" ".join(repr(float(v)) for v in values))
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
+
+
+TRAJECTORY_READERS: Mapping[str, Callable[[Path], Trajectory]] = MappingProxyType(
+    {"tum": read_tum, "kitti": read_kitti, "pose_lines": read_pose_lines, "redwood_log": read_redwood_log}
+)
+"""Trajectory file readers by format name."""

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from slamfront.core.alignment import transform_points, umeyama
+from slamfront.core.alignment import apply, umeyama
 from slamfront.report.plots import _pyplot
 
 
@@ -17,7 +17,7 @@ def aligned_to(points: np.ndarray, ground_truth: np.ndarray | None) -> np.ndarra
     """``points`` moved onto ``ground_truth`` by the rigid motion ATE uses (as given without it)."""
     if ground_truth is None:
         return points
-    return transform_points(points, *umeyama(points, ground_truth))
+    return apply(points, *umeyama(points, ground_truth))
 
 
 def _plane(stacked: np.ndarray) -> tuple[int, int]:

@@ -120,13 +120,130 @@ def trajectories_2d(
             ax.plot(points[:, a], points[:, b], label=label, linewidth=1.2)
     for segment in markers:
         ax.plot(segment[:, a], segment[:, b], color="tab:red", linewidth=0.6, alpha=0.6)
+    return _save_top_view(plt, fig, ax, (a, b), title or "trajectory", path)
+
+
+def _save_top_view(plt: Any, fig: Any, ax: Any, axes: tuple[int, int], title: str, path: Path) -> Path:
+    """Equal-aspect metric axes, grid, legend; write the PNG and close the figure."""
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("xyz"[a] + " [m]")
-    ax.set_ylabel("xyz"[b] + " [m]")
-    ax.set_title(title or "trajectory")
+    ax.set_xlabel("xyz"[axes[0]] + " [m]")
+    ax.set_ylabel("xyz"[axes[1]] + " [m]")
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def _top_view_axes(points: np.ndarray) -> tuple[int, int]:
+    """The two axes a path spreads in most: (x, y), or (x, z) for y-down camera conventions."""
+    spread = np.ptp(points, axis=0) if len(points) else np.ones(3)
+    return (0, 1) if spread[1] >= spread[2] else (0, 2)
+
+
+def localization_plot(
+    truth: np.ndarray, estimate: np.ndarray, keyframes: np.ndarray, path: Path, title: str = ""
+) -> Path:
+    """Top view of ground-truth vs estimated positions, each pair joined, keyframes marked.
+
+    :param truth: (N, 3) true positions, in route order.
+    :param estimate: (N, 3) estimated positions of the same frames.
+    :param keyframes: (K, 3) keyframe positions.
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 5.5), dpi=110)
+    a, b = _top_view_axes(np.concatenate([truth, estimate, keyframes.reshape(-1, 3)]))
+    for t, e in zip(truth, estimate):
+        ax.plot([t[a], e[a]], [t[b], e[b]], color="tab:red", linewidth=0.5, alpha=0.5)
+    ax.plot(truth[:, a], truth[:, b], color="tab:gray", linewidth=1.2, label="ground truth")
+    ax.scatter(estimate[:, a], estimate[:, b], s=7, color="tab:blue", label="estimated", zorder=3)
+    if len(keyframes):
+        ax.scatter(keyframes[:, a], keyframes[:, b], s=40, marker="^", facecolors="none", edgecolors="tab:green",
+                   label=f"keyframes ({len(keyframes)})", zorder=4)
+    return _save_top_view(plt, fig, ax, (a, b), title or "localization", path)
+
+
+def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", xlabel: str = "", ylabel: str = "") -> Path:
+    """Per-frame errors (N,) against a position along the run (N,), with their RMSE as a line."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6.5, 3.2), dpi=110)
+    order = np.argsort(x, kind="stable")
+    ax.plot(x[order], errors[order], linewidth=0.8, marker=".", markersize=3)
+    if len(errors):
+        rmse = float(np.sqrt(np.mean(np.square(errors))))
+        ax.axhline(rmse, color="tab:red", linewidth=0.8, linestyle="--", label=f"RMSE {rmse:.3g}")
+        ax.legend(fontsize=8)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def local_test(offsets: np.ndarray, curves: Mapping[str, Mapping[int, np.ndarray]], path: Path, title: str = "") -> Path:
+    """Matches against neighbouring frames, one panel per target frame, one curve per descriptor.
+
+    :param offsets: (M,) frame offsets from the target.
+    :param curves: ``{descriptor: {target: (M,) matches (NaN: none)}}``.
+    """
+    plt = _pyplot()
+    targets = sorted({t for per_target in curves.values() for t in per_target})
+    fig, axes = _panels(plt, len(targets), 2, (5.2, 3.2))
+    for ax, target in zip(axes.ravel(), targets):
+        for label, per_target in curves.items():
+            if target in per_target:
+                ax.plot(offsets, per_target[target], marker="o", markersize=3, linewidth=1, label=label)
+        ax.axvline(0, color="gray", linewidth=0.6, linestyle=":")
+        ax.set_title(f"target frame {target}", fontsize=9)
+        ax.set_xlabel("frame offset from target")
+        ax.set_ylabel("matches after RANSAC")
+        ax.grid(alpha=0.3)
+    return _save_panels(plt, fig, axes, len(targets), title or "local test", path)
+
+
+def _panels(plt: Any, count: int, columns: int, size: tuple[float, float]) -> tuple[Any, np.ndarray]:
+    """A grid of at least ``count`` panels, ``columns`` wide at most."""
+    columns = min(count, columns) or 1
+    rows = max(1, int(np.ceil(count / columns)))
+    return plt.subplots(rows, columns, figsize=(size[0] * columns, size[1] * rows), dpi=100, squeeze=False)
+
+
+def _save_panels(plt: Any, fig: Any, axes: np.ndarray, used: int, title: str, path: Path) -> Path:
+    """Blank the unused panels, put the legend in the first, write the PNG and close the figure."""
+    for ax in axes.ravel()[used:]:
+        ax.axis("off")
+    axes.ravel()[0].legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def distance_histograms(
+    samples: Mapping[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str = ""
+) -> Path:
+    """Per descriptor: distances of verified matches vs nearest neighbours in unrelated frames.
+
+    :param samples: ``{descriptor: (verified distances, unrelated distances, threshold)}``.
+    """
+    plt = _pyplot()
+    labels = list(samples)
+    fig, axes = _panels(plt, len(labels), 3, (4.2, 3.0))
+    for ax, label in zip(axes.ravel(), labels):
+        verified, unrelated, threshold = samples[label]
+        both = np.concatenate([verified, unrelated]) if len(verified) + len(unrelated) else np.zeros(1)
+        bins = np.linspace(0, float(np.max(both)) * 1.02 + 1e-9, 40)
+        if len(unrelated):
+            ax.hist(unrelated, bins=bins, alpha=0.5, density=True, color="tab:red", label="nearest, unrelated frames")
+        if len(verified):
+            ax.hist(verified, bins=bins, alpha=0.5, density=True, color="tab:green", label="verified, neighbouring frames")
+        ax.axvline(threshold, color="black", linewidth=1, linestyle="--", label=f"threshold {threshold:g}")
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel("descriptor distance")
+    return _save_panels(plt, fig, axes, len(labels), title or "match distances", path)

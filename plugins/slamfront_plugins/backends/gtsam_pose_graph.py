@@ -16,6 +16,7 @@ from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, make_graph
 from slamfront.data import DataPath
 from slamfront.local_features import LocalFeatureExtractor
+from slamfront.matching import Matcher, resolve_max_distance
 from slamfront.messages import Features, LoopConstraint, LoopResult, Message, PoseGraphState, RelativePose, Trajectory
 from slamfront.posegraph.io import OdometryTable, read_odometry
 from slamfront.posegraph.solver import (
@@ -100,6 +101,9 @@ class GtsamPoseGraph(Backend):
         self._initial: list[np.ndarray] = []
         self._edges: list[tuple[int, int, np.ndarray, np.ndarray]] = []
         self._features: dict[int, FrameFeatures] = {}
+        self._matcher: Matcher | None = None
+        self._stage_descriptor: str | None = None
+        """The descriptor stage's local-feature type, when it gives local features to reuse."""
         self._previous: Frame | None = None
         self._isam: Isam2Session | None = None
         self._counts = {"n_loop_closures_added": 0, "n_loop_closures_skipped": 0}
@@ -115,6 +119,9 @@ class GtsamPoseGraph(Backend):
         return read_odometry(self.config.odometry_file)
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
+        descriptor = stages.get("descriptor")
+        if descriptor is not None and getattr(descriptor, "produces_local", False):
+            self._stage_descriptor = getattr(descriptor.config, "descriptor", None)
         if self.config.odometry == "stages" and not {"registration", "localizer"} & set(stages):
             raise PluginError(
                 "gtsam_pose_graph: odometry: stages needs a registration or localizer stage producing RelativePose"
@@ -176,16 +183,20 @@ class GtsamPoseGraph(Backend):
         )
 
     def _remember_features(self, frame: Frame, inputs: StageInputs) -> None:
+        """Keep the frame's features (and their 3-D points) for loops closed later."""
         if self.config.loop_pose == "stages" or frame.camera is None:
             return
-        keypoints = descriptors = None
-        for message in inputs.outputs.get("descriptor", []):
-            if isinstance(message, Features) and message.keypoints is not None and message.descriptors is not None:
-                keypoints, descriptors = message.keypoints, message.descriptors
-        if keypoints is None or descriptors is None:
+        stage = self._stage_descriptor
+        features = next((m for m in inputs.outputs.get("descriptor", []) if isinstance(m, Features)), None)
+        if stage is not None and features is not None and features.keypoints is not None:
+            keypoints, descriptors, metric, kind = features.keypoints, features.descriptors, features.metric, stage
+        else:
             grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
-            features = self._extractor.extract(grey)
-            keypoints, descriptors = features.keypoints, features.descriptors
+            own = self._extractor.extract(grey)
+            keypoints, descriptors, metric, kind = own.keypoints, own.descriptors, own.metric, self.config.pnp.descriptor
+        if self._matcher is None:
+            matching = self.config.pnp.matching
+            self._matcher = Matcher(matching, metric, resolve_max_distance(matching, kind))
         self._features[frame.index] = FrameFeatures(keypoints, descriptors, lift(keypoints, frame.depth, frame.camera))
 
     def _close_loop(self, frame: Frame, match: int, relative: list[RelativePose]) -> LoopConstraint:
@@ -205,7 +216,8 @@ class GtsamPoseGraph(Backend):
             if reference is None or query is None or frame.camera is None:
                 reason = f"frame {match} has no features and depth for PnP"
             else:
-                verdict = verify(reference, query, frame.camera, self.config.pnp)
+                assert self._matcher is not None
+                verdict = verify(reference, query, frame.camera, self._matcher, self.config.pnp)
                 transform, inliers, reason = verdict.transform, verdict.inliers, verdict.reason
         if transform is None:
             self._counts["n_loop_closures_skipped"] += 1

@@ -10,20 +10,10 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import Descriptor, PluginConfig, StageInputs
+from slamfront.core.thumbnail import patch_normalise, thumbnail
 from slamfront.messages import Features
 
-
-def patch_normalise(image: np.ndarray, patch: int) -> np.ndarray:
-    """Each ``patch`` x ``patch`` block of a float image to zero mean and unit std.
-
-    Flat blocks (std 0) become 0. The image sides must be multiples of ``patch``.
-    """
-    h, w = image.shape
-    blocks = image.reshape(h // patch, patch, w // patch, patch)
-    mean = blocks.mean(axis=(1, 3), keepdims=True)
-    std = blocks.std(axis=(1, 3), keepdims=True)
-    normalised = np.where(std > 1e-6, (blocks - mean) / np.maximum(std, 1e-6), 0.0)
-    return normalised.reshape(h, w)
+__all__ = ["DownsampledImage", "patch_normalise"]
 
 
 class DownsampledImage(Descriptor):
@@ -57,14 +47,7 @@ class DownsampledImage(Descriptor):
         """(width * height,) float32 descriptor of an RGB or grey uint8 image."""
         c = self.config
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-        if c.normalisation == "global":
-            grey = cv2.equalizeHist(grey)
-        small = cv2.resize(grey, (c.width, c.height), interpolation=cv2.INTER_AREA).astype(np.float32)
-        if c.normalisation == "patch":
-            small = patch_normalise(small, c.patch_size)
-        vector = (small - small.mean()).ravel().astype(np.float32)
-        norm = float(np.linalg.norm(vector))
-        return vector / norm if norm > 0 else vector
+        return thumbnail(grey, c.width, c.height, c.patch_size if c.normalisation == "patch" else None)
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         return [Features(frame=inputs.frame.index, vector=self.describe(inputs.frame.image), metric=self.config.metric)]

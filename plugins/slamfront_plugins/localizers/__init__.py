@@ -1,1 +1,9 @@
-"""Built-in localizers (none yet)."""
+"""Built-in localizers."""
+
+from slamfront import hookimpl
+from slamfront_plugins.localizers.keyframe import KeyframeLocalizer
+
+
+@hookimpl
+def slamfront_localizers() -> list[type]:
+    return [KeyframeLocalizer]

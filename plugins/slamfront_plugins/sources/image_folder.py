@@ -1,23 +1,29 @@
-"""The ``image_folder`` source: every image of a folder, in name order."""
+"""The ``image_folder`` source: every image of a folder, in name order (optionally with poses)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from functools import cached_property
 from pathlib import Path
+from typing import Literal
 
+import numpy as np
 from pydantic import Field
 
-from slamfront import Frame, PluginConfig, Source
+from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
+from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
 from slamfront.imageio import list_images, read_image
+from slamfront_plugins.sources.rgbd import KNOWN_CAMERAS, Intrinsics, KnownCamera
 
 
 class ImageFolder(Source):
     """Images of one folder as a single stream, in natural name order (2 before 10).
 
     Relative folders are looked up under the data root (``$SLAMFRONT_DATA``). Timestamps
-    are ``index / fps``. There is no ground truth.
+    are ``index / fps`` (or the pose file's, for TUM poses). Optionally a pose file gives
+    each image's ground-truth camera-to-world pose (one per image in the folder, in
+    order) and ``camera`` its intrinsics: an RGB-only sequence for the localizer.
     """
 
     name = "image_folder"
@@ -29,23 +35,67 @@ class ImageFolder(Source):
         start: int = Field(0, ge=0, description="index of the first image used")
         limit: int | None = Field(None, ge=1, description="at most this many frames")
         fps: float = Field(10.0, gt=0, description="frames per second, for timestamps")
+        poses: DataPath | None = Field(
+            None, description="ground-truth poses, one per image of the folder (relative: under the data root)"
+        )
+        pose_format: Literal["pose_lines", "redwood_log", "tum", "kitti"] = Field(
+            "pose_lines", description="format of `poses`"
+        )
+        camera: Intrinsics | KnownCamera | None = Field(
+            None, description="intrinsics (fx/fy/cx/cy or a known camera name), if known"
+        )
 
     @cached_property
-    def files(self) -> list[Path]:
+    def _all_files(self) -> list[Path]:
+        return list_images(Path(self.config.folder), self.config.pattern)
+
+    @cached_property
+    def _selection(self) -> list[int]:
         c = self.config
-        selected = list_images(Path(c.folder), c.pattern)[c.start :: c.step]
-        return selected[: c.limit] if c.limit is not None else selected
+        chosen = list(range(len(self._all_files)))[c.start :: c.step]
+        return chosen[: c.limit] if c.limit is not None else chosen
+
+    @property
+    def files(self) -> list[Path]:
+        return [self._all_files[i] for i in self._selection]
+
+    @cached_property
+    def trajectory(self) -> Trajectory | None:
+        """The ground-truth poses, checked against the number of images."""
+        c = self.config
+        if c.poses is None:
+            return None
+        trajectory = TRAJECTORY_READERS[c.pose_format](Path(c.poses))
+        if len(trajectory) != len(self._all_files):
+            raise DataError(
+                f"{c.poses}: {len(trajectory)} poses for {len(self._all_files)} images in {c.folder}"
+                f"{'' if c.pattern == '*' else f' matching {c.pattern!r}'}"
+            )
+        return trajectory
+
+    def _camera(self, image: np.ndarray) -> Camera | None:
+        camera = self.config.camera
+        if camera is None:
+            return None
+        fx, fy, cx, cy = KNOWN_CAMERAS[camera] if isinstance(camera, str) else (camera.fx, camera.fy, camera.cx, camera.cy)
+        return Camera(fx=fx, fy=fy, cx=cx, cy=cy, width=image.shape[1], height=image.shape[0])
 
     def __len__(self) -> int:
-        return len(self.files)
+        return len(self._selection)
 
     def frames(self) -> Iterator[Frame]:
-        for index, path in enumerate(self.files):
+        trajectory = self.trajectory
+        timed = trajectory is not None and self.config.pose_format == "tum"
+        for index, position in enumerate(self._selection):
+            path = self._all_files[position]
+            image = read_image(path)
             yield Frame(
                 index=index,
-                timestamp=index / self.config.fps,
-                image=read_image(path),
+                timestamp=float(trajectory.timestamps[position]) if timed else index / self.config.fps,
+                image=image,
                 traversal="stream",
-                sequence_index=self.config.start + index * self.config.step,
+                sequence_index=position,
                 name=path.name,
+                camera=self._camera(image),
+                pose=None if trajectory is None else trajectory.poses[position],
             )

@@ -20,14 +20,7 @@ from pydantic import Field
 
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath
-from slamfront.formats.poses import (
-    Trajectory,
-    numbered_fields,
-    read_kitti,
-    read_pose_lines,
-    read_redwood_log,
-    read_tum,
-)
+from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
 
@@ -44,9 +37,8 @@ KNOWN_CAMERAS = MappingProxyType(
 )
 KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim", "slambook_room"]
 
-POSE_READERS = MappingProxyType(
-    {"pose_lines": read_pose_lines, "redwood_log": read_redwood_log, "tum": read_tum, "kitti": read_kitti}
-)
+POSE_READERS = TRAJECTORY_READERS
+_FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
 class Intrinsics(PluginConfig):
@@ -68,6 +60,11 @@ class RgbdConfig(PluginConfig):
     start: int = Field(0, ge=0, description="first frame used")
     step: int = Field(1, ge=1, description="use every step-th frame")
     limit: int | None = Field(None, ge=1, description="at most this many frames")
+    flip_y: bool = Field(
+        False,
+        description="the poses use a y-up camera and world (ICL-NUIM's POV-Ray convention): "
+        "read them as diag(1,-1,1) T diag(1,-1,1), so they agree with the images",
+    )
 
 
 @dataclass(frozen=True)
@@ -119,7 +116,7 @@ class RgbdSequence(Source):
                 name=entry.color.name,
                 depth=depth,
                 camera=camera,
-                pose=entry.pose,
+                pose=entry.pose if entry.pose is None or not self.config.flip_y else _FLIP_Y @ entry.pose @ _FLIP_Y,
             )
 
 

@@ -51,6 +51,10 @@ class SyntheticWorld(Source):
         max_depth_m: float = Field(40.0, gt=0, description="depth beyond this reads 0 (no return)")
         tolerance: int = Field(3, ge=0, description="zeta: frames either side that still count as a match")
         revisit_radius_m: float = Field(3.0, gt=0, description="stream mode: a revisit is this close")
+        shuffle: bool = Field(
+            False, description="give the query traversal (paired) or the whole stream in a random order (kidnapped robot)"
+        )
+        shuffle_seed: int = Field(0, description="seed of the shuffled order")
 
         @model_validator(mode="after")
         def _lap_illuminations(self) -> SyntheticWorld.Config:
@@ -96,47 +100,67 @@ class SyntheticWorld(Source):
     def __len__(self) -> int:
         return self.config.frames_per_traversal * len(self._passes())
 
+    def schedule(self) -> list[tuple[int, int]]:
+        """(pass number, frame k of that pass) of each frame, in the order they are given.
+
+        Pass by pass, k = 0, 1, ...; with ``shuffle``, the query pass (paired) or the
+        whole stream comes in a seeded random order. Each frame's pixels and pose depend
+        only on (pass, k), never on the order.
+        """
+        c = self.config
+        order = [(p, k) for p in range(len(self._passes())) for k in range(c.frames_per_traversal)]
+        if not c.shuffle:
+            return order
+        first = c.frames_per_traversal if c.mode == "paired" else 0
+        shuffled = np.random.default_rng(c.shuffle_seed).permutation(len(order) - first)
+        return order[:first] + [order[first + int(i)] for i in shuffled]
+
     def frames(self) -> Iterator[Frame]:
+        n = self.config.frames_per_traversal
+        dt = self.step_m / self.config.speed_mps
+        passes = len(self._passes())
+        # arrival times keep the unshuffled clock (a minute between passes): strictly increasing
+        arrival = [p * (n * dt + 60.0) + k * dt for p in range(passes) for k in range(n)]
+        for index, (pass_number, k) in enumerate(self.schedule()):
+            yield self.frame_at(pass_number, k, index, arrival[index])
+
+    def frame_at(self, pass_number: int, k: int, index: int = 0, timestamp: float = 0.0) -> Frame:
+        """Frame ``k`` of pass ``pass_number``, rendered on its own (random access, e.g. for benchmarks)."""
         c = self.config
         camera = self.camera
         n = c.frames_per_traversal
-        dt = self.step_m / c.speed_mps
-        index = 0
-        for pass_number, (traversal, illumination, lateral, yaw, occluders) in enumerate(self._passes()):
-            lighting = Lighting.of(illumination)
-            start_time = pass_number * (n * dt + 60.0)  # a minute between passes
-            for k in range(n):
-                along = k * self.step_m
-                pose = self.world.pose_at(along, lateral, yaw)
-                local_time = k * dt
-                image, depth = self.world.render(
-                    pose, camera.matrix, camera.width, camera.height, lighting,
-                    occluders_at(c.seed + pass_number, local_time, self.world.route, occluders),
-                    noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + index, max_depth_m=c.max_depth_m,
-                )
-                sequence_index = k if traversal != "stream" else index
-                yield Frame(
-                    index=index, timestamp=start_time + local_time, image=image, traversal=traversal,
-                    sequence_index=sequence_index, name=f"{traversal}-{sequence_index:05d}", depth=depth,
-                    camera=camera, pose=pose,
-                )
-                index += 1
+        traversal, illumination, lateral, yaw, occluders = self._passes()[pass_number]
+        pose = self.world.pose_at(k * self.step_m, lateral, yaw)
+        place = pass_number * n + k
+        image, depth = self.world.render(
+            pose, camera.matrix, camera.width, camera.height, Lighting.of(illumination),
+            occluders_at(c.seed + pass_number, k * self.step_m / c.speed_mps, self.world.route, occluders),
+            noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + place, max_depth_m=c.max_depth_m,
+        )
+        sequence_index = k if traversal != "stream" else place
+        return Frame(
+            index=index, timestamp=timestamp, image=image, traversal=traversal, sequence_index=sequence_index,
+            name=f"{traversal}-{sequence_index:05d}", depth=depth, camera=camera, pose=pose,
+        )
 
     def loop_ground_truth(self) -> LoopGroundTruth:
         c = self.config
         n = c.frames_per_traversal
         if c.mode == "paired":
             return self._paired_truth(c.tolerance)
-        # stream: a frame revisits every earlier-lap frame within the radius along the route
+        schedule = self.schedule()
+        # stream: a frame revisits every frame given before it, of another lap, within the radius along
+        # the route (in a shuffled stream also of its own lap: it was not just there)
         reach = int(np.floor(c.revisit_radius_m / self.step_m))
-        queries = np.arange(n * c.laps)
+        laps = np.array([p for p, _ in schedule], dtype=np.int64)
+        ks = np.array([k for _, k in schedule], dtype=np.int64)
         rows = []
-        for frame in queries:
-            lap, k = divmod(int(frame), n)
-            near = (k + np.arange(-reach, reach + 1)) % n
-            rows.append(np.sort(np.concatenate([earlier * n + near for earlier in range(lap)]))
-                        if lap else np.empty(0, dtype=np.int64))
-        return LoopGroundTruth.from_rows(queries, rows)
+        for frame in range(len(schedule)):
+            gap = np.abs(ks[:frame] - ks[frame])
+            near = np.minimum(gap, n - gap) <= reach
+            other = laps[:frame] != laps[frame] if not c.shuffle else np.ones(frame, dtype=bool)
+            rows.append(np.flatnonzero(near & other).astype(np.int64))
+        return LoopGroundTruth.from_rows(np.arange(len(schedule)), rows)
 
     def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
         """Paired mode only: stream revisits are defined by ``revisit_radius_m``, not zeta."""
@@ -145,4 +169,5 @@ class SyntheticWorld(Source):
     def _paired_truth(self, tolerance: int) -> LoopGroundTruth:
         n = self.config.frames_per_traversal
         queries = np.arange(n, 2 * n)
-        return LoopGroundTruth.band(queries, queries - n, tolerance, valid=(0, n - 1))
+        places = np.array([k for _, k in self.schedule()[n:]], dtype=np.int64)
+        return LoopGroundTruth.band(queries, places, tolerance, valid=(0, n - 1))

@@ -1,0 +1,107 @@
+"""``slamfront eval traj GROUND_TRUTH ESTIMATE`` and ``slamfront eval descriptors SOURCE``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from slamfront.core.errors import CoreError
+from slamfront.core.trajectory import TrajectoryEvaluation, evaluate_poses, evaluate_trajectories
+from slamfront.errors import DataError
+from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
+
+TIMED_FORMATS = ("tum",)
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    parser = commands.add_parser(
+        "eval",
+        help="evaluate outside a run: trajectories (ATE/RPE), local descriptors (seed 002 ch. 5.1)",
+        description="Evaluation tools that work on files, outside a recipe run.",
+    )
+    tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    traj = tools.add_parser(
+        "traj",
+        help="ATE and RPE of an estimated trajectory against the ground truth",
+        description=(
+            "ATE (after Horn/Umeyama alignment) and RPE (translation and rotation) of ESTIMATE against "
+            "GROUND_TRUTH, as the TUM RGB-D benchmark defines them; the same functions runs use. TUM files "
+            "are associated by timestamp; the other formats pose by pose."
+        ),
+    )
+    traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH")
+    traj.add_argument("estimate", type=Path, metavar="ESTIMATE")
+    traj.add_argument("--format", choices=sorted(TRAJECTORY_READERS), default="tum", help="file format (default tum)")
+    traj.add_argument("--align", choices=("se3", "sim3", "none"), default="se3",
+                      help="alignment before ATE: rigid (default), with scale (monocular), or none")
+    traj.add_argument("--delta", type=float, default=1, help="RPE interval (default 1)")
+    traj.add_argument("--delta-unit", choices=("frames", "seconds"), default="frames", help="unit of --delta")
+    traj.add_argument("--max-difference", type=float, default=0.02, metavar="S",
+                      help="TUM: largest timestamp difference to associate two poses (default 0.02 s)")
+    traj.add_argument("--offset", type=float, default=0.0, metavar="S", help="TUM: added to the estimate's timestamps")
+    traj.add_argument("--plot", type=Path, metavar="PNG", help="also draw ground truth and aligned estimate (top view)")
+    traj.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    traj.set_defaults(handler=run_traj)
+    from slamfront.cli import descriptor_eval_cmd
+
+    descriptor_eval_cmd.add_parser(tools)
+
+
+def load_and_evaluate(args: argparse.Namespace) -> tuple[Trajectory, Trajectory, TrajectoryEvaluation]:
+    """Read both files and compute ATE/RPE, naming the files in any error."""
+    read = TRAJECTORY_READERS[args.format]
+    gt, est = read(args.ground_truth), read(args.estimate)
+    try:
+        if args.format in TIMED_FORMATS:
+            result = evaluate_trajectories(
+                gt.timestamps, gt.poses, est.timestamps, est.poses, args.max_difference, args.offset,
+                args.align, args.delta, args.delta_unit,
+            )
+        else:
+            if len(gt) != len(est):
+                raise DataError(
+                    f"{args.estimate}: {len(est)} poses but {args.ground_truth} has {len(gt)}; "
+                    f"{args.format} files carry no timestamps, so they are compared pose by pose"
+                )
+            result = evaluate_poses(gt.poses, est.poses, gt.timestamps, args.align, args.delta, args.delta_unit)
+    except CoreError as exc:
+        raise DataError(f"{args.estimate} vs {args.ground_truth}: {exc}") from None
+    return gt, est, result
+
+
+def run_traj(args: argparse.Namespace) -> int:
+    gt, est, result = load_and_evaluate(args)
+    metrics = result.metrics()
+    if args.plot is not None:
+        from slamfront.report import plots
+
+        aligned = result.ate.alignment.apply_to_poses(est.poses[result.pairs[:, 1]])
+        plots.trajectories_2d(
+            {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
+            args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
+        )
+    if args.json:
+        document = {"ground_truth": str(args.ground_truth), "estimate": str(args.estimate), **metrics}
+        finite = {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in document.items()}
+        print(json.dumps(finite, indent=2, allow_nan=False, default=_plain))
+        return 0
+    a, t, r = result.ate.statistics, result.rpe.translation_statistics, result.rpe.rotation_statistics
+    print(f"ground truth: {args.ground_truth} ({len(gt)} poses)")
+    print(f"estimate:     {args.estimate} ({len(est)} poses)")
+    print(f"associated:   {len(result.pairs)} pose pairs")
+    print(f"ATE ({args.align} alignment{f', scale {result.ate.alignment.scale:.4g}' if args.align == 'sim3' else ''}):"
+          f" rmse {a.rmse:.6g} m, mean {a.mean:.6g}, median {a.median:.6g}, max {a.max:.6g}")
+    print(f"RPE (delta {args.delta:g} {args.delta_unit}, {t.n} pairs): rmse {t.rmse:.6g} m, max {t.max:.6g} m, "
+          f"rotation rmse {r.rmse:.6g} deg")
+    print(f"ate_rmse_m = {a.rmse:.6g}")
+    print(f"rpe_rmse_m = {t.rmse:.6g}")
+    return 0
+
+
+def _plain(value: object) -> object:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(type(value).__name__)
