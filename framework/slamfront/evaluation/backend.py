@@ -1,11 +1,12 @@
-"""Back-end evaluation: ATE of the trajectory before and after pose-graph optimisation,
-loop closures the back end added (and how many of them were true), and a plot."""
+"""Back-end evaluation: ATE and RPE (Sturm et al. 2012, :mod:`slamfront.core.trajectory`)
+of the trajectory before and after pose-graph optimisation, loop closures the back end
+added (and how many of them were true), and a plot."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from slamfront.core.alignment import ate_rmse
+from slamfront.core.trajectory import evaluate_poses
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
 from slamfront.posegraph import report
@@ -32,7 +33,7 @@ class BackendEvaluation(Evaluation):
 
     def observe(self, kind: str, message: Message) -> None:
         if isinstance(message, FrameInfo) and message.pose is not None:
-            self._truth[message.frame] = message.pose[:3, 3].copy()
+            self._truth[message.frame] = np.asarray(message.pose, dtype=np.float64)
         elif isinstance(message, Trajectory) and message.label in self.labels:
             self._trajectories[message.label] = message
         elif isinstance(message, PoseGraphState):
@@ -57,13 +58,16 @@ class BackendEvaluation(Evaluation):
         estimate = self._trajectories.get("optimised") or next(iter(self._trajectories.values()))
         frames = estimate.frames
         has_truth = len(frames) >= 3 and all(int(f) in self._truth for f in frames)
-        ground_truth = np.array([self._truth[int(f)] for f in frames]) if has_truth else None
+        truth_poses = np.array([self._truth[int(f)] for f in frames]) if has_truth else None
+        ground_truth = None if truth_poses is None else truth_poses[:, :3, 3]
         positions = {label: t.poses[:, :3, 3] for label, t in self._trajectories.items()}
-        if ground_truth is not None and np.ptp(ground_truth, axis=0).max() > 0:
-            if "odometry" in positions:
-                metrics["ate_rmse_before_m"] = ate_rmse(positions["odometry"], ground_truth)
-            if "optimised" in positions:
-                metrics["ate_rmse_after_m"] = ate_rmse(positions["optimised"], ground_truth)
+        if truth_poses is not None and np.ptp(ground_truth, axis=0).max() > 0:
+            for label, suffix in (("odometry", "before"), ("optimised", "after")):
+                if label in self._trajectories:
+                    scores = evaluate_poses(truth_poses, self._trajectories[label].poses).metrics()
+                    metrics[f"ate_rmse_{suffix}_m"] = scores["ate_rmse_m"]
+                    metrics[f"rpe_rmse_{suffix}_m"] = scores["rpe_rmse_m"]
+                    metrics[f"rpe_rotation_rmse_{suffix}_deg"] = scores["rpe_rotation_rmse_deg"]
         figures = []
         if context.options.plots:
             loops = None
