@@ -318,10 +318,18 @@ def optimize(graph: PoseGraph, options: SolverOptions | None = None) -> Optimiza
     return _optimize_lm(graph, options)
 
 
-def _lm(name: str, factor_graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: SolverOptions) -> tuple[gtsam.Values, int]:
-    """One Levenberg-Marquardt run: the solution and its iteration count."""
-    optimizer = gtsam.LevenbergMarquardtOptimizer(factor_graph, values, _lm_params(options))
-    return _solve(name, optimizer.optimize), int(optimizer.iterations())
+def _lm(
+    name: str, factor_graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: SolverOptions
+) -> tuple[gtsam.Values, int, bool]:
+    """One Levenberg-Marquardt run: the solution, its iteration count, and whether it
+    converged (stopped by the tolerances, not by the iteration limit nor by giving up
+    at the largest damping, GTSAM's "cannot decrease error with maximum lambda")."""
+    params = _lm_params(options)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(factor_graph, values, params)
+    solution = _solve(name, optimizer.optimize)
+    iterations = int(optimizer.iterations())
+    gave_up = optimizer.lambda_() >= params.getlambdaUpperBound()
+    return solution, iterations, iterations < options.max_iterations and not gave_up
 
 
 def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
@@ -329,7 +337,7 @@ def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult
     started = time.perf_counter()
     factor_graph, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust_mask(graph, options))
     values = to_values(graph.ids, initial)
-    solution, iterations = _lm(graph.name, factor_graph, values, options)
+    solution, iterations, converged = _lm(graph.name, factor_graph, values, options)
     return OptimizationResult(
         poses=poses_from_values(solution, graph.dim),
         initial=initial,
@@ -337,7 +345,7 @@ def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult
         cost_after=float(factor_graph.error(solution)),
         iterations=iterations,
         seconds=time.perf_counter() - started,
-        converged=iterations < options.max_iterations,
+        converged=converged,
         mode="batch",
         kernel=options.kernel,
     )
@@ -351,7 +359,7 @@ def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResul
     start, iterations = values, 0
     if options.gnc_warm_start == "dcs":
         robust, _ = build_factor_graph(graph, anchors, "dcs", KERNELS["dcs"].default_parameter, ~graph.is_odometry())
-        start, iterations = _lm(graph.name, robust, values, options)
+        start, iterations, _ = _lm(graph.name, robust, values, options)
     params = gtsam.GncLMParams(_lm_params(options, options.gnc_inner_iterations))
     params.setLossType(gtsam.GncLossType.TLS if options.gnc_loss == "tls" else gtsam.GncLossType.GM)
     params.setLambdaStep(options.gnc_step)
@@ -364,7 +372,7 @@ def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResul
     # A last LM over the weighted graph: GNC's answer is its optimum already, so this
     # only confirms convergence and gives an iteration count GNC itself does not report.
     weighted = _weighted_graph(plain, weights)
-    solution, polish_iterations = _lm(graph.name, weighted, solution, options)
+    solution, polish_iterations, converged = _lm(graph.name, weighted, solution, options)
     return OptimizationResult(
         poses=poses_from_values(solution, graph.dim),
         initial=initial,
@@ -372,7 +380,7 @@ def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResul
         cost_after=float(weighted.error(solution)),
         iterations=iterations + polish_iterations,
         seconds=time.perf_counter() - started,
-        converged=polish_iterations < options.max_iterations,
+        converged=converged,
         mode="batch",
         kernel="gnc",
         weights=weights[: graph.n_edges],
