@@ -105,3 +105,11 @@ def test_a_robust_kernel_survives_20_percent_false_closures_on_m3500(posegraphs:
     assert false.sum() == 488
     robust = ate_rmse(optimize(corrupted, SolverOptions(kernel="dcs")).poses[:, :2, 2], truth)
     assert robust <= 1.1 * clean, (clean, robust)  # (least squares gives about 40x clean: see the README)
+
+
+def test_a_graph_lm_cannot_improve_is_reported_as_not_converged(posegraphs: Path) -> None:
+    # slambook's INTEL.g2o has an edge whose information has a condition number of 2e11:
+    # GTSAM's LM (ours, and readG2o + LM alike) gives up at the largest damping
+    graph = read_graph(posegraphs / "slambook/INTEL.g2o").parsed.graph
+    result = optimize(graph)
+    assert not result.converged and result.cost_after == pytest.approx(result.cost_before)
