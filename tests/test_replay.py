@@ -40,6 +40,16 @@ REPLAYED_PIPELINES: dict[str, dict[str, Any]] = {
         "descriptor": {"plugin": "downsampled", "params": {"width": 16, "height": 12, "patch_size": 4}},
         "loop_detector": {"plugin": "nearest_neighbour", "params": {"exclude_recent": 10}},
     },
+    "seqslam": {
+        "source_params": {"image_width": 64, "image_height": 32},
+        "descriptor": {"plugin": "seqslam_thumbnail"},
+        "loop_detector": {"plugin": "seqslam", "params": {"ds": 6}},
+    },
+    "seqslam_fast_online": {
+        "source_params": {"image_width": 64, "image_height": 32},
+        "descriptor": {"plugin": "seqslam_thumbnail"},
+        "loop_detector": {"plugin": "seqslam_fast", "params": {"ds": 6, "mode": "online", "score_offset": "bound"}},
+    },
 }
 
 

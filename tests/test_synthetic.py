@@ -39,10 +39,16 @@ def test_stream_ground_truth_links_laps() -> None:
     truth = source.loop_ground_truth()
     assert len(truth) == 90
     has = truth.has_true_match()
-    assert not has[:30].any() and has[30:].all()
+    assert not has[:29].any() and has[29:].all()
+
+    def matches(frame: int) -> list[int]:
+        row = truth.rows_of(np.array([frame]))[0]
+        return truth.matches[truth.indptr[row] : truth.indptr[row + 1]].tolist()
+
     # frame 65 (lap 2, position 5) revisits positions 5 +- 1 of laps 0 and 1 (3 m reach, 3 m steps)
-    row = truth.rows_of(np.array([65]))[0]
-    assert truth.matches[truth.indptr[row] : truth.indptr[row + 1]].tolist() == [4, 5, 6, 34, 35, 36]
+    assert matches(65) == [4, 5, 6, 34, 35, 36]
+    # the route is closed: the last frame of a lap is back at the start of that lap too
+    assert matches(29) == [0] and matches(59) == [0, 28, 29, 30]
 
 
 def test_depth_back_projects_onto_the_geometry() -> None:

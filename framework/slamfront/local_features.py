@@ -16,10 +16,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Literal
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
+from pydantic import BeforeValidator
 
 DescriptorType = Literal["sift", "rootsift", "orb", "brisk", "akaze", "kaze", "brief", "freak"]
 DetectorType = Literal["native", "fast", "agast", "gftt", "orb", "sift", "brisk"]
@@ -28,6 +29,16 @@ SURF_UNAVAILABLE = (
     "SURF is patented and not in OpenCV's wheels (built without OPENCV_ENABLE_NONFREE); "
     "use sift, rootsift or kaze for float descriptors, orb, brisk or akaze for binary ones"
 )
+
+
+def _refuse_surf(value: object) -> object:
+    if isinstance(value, str) and value.lower() == "surf":
+        raise ValueError(SURF_UNAVAILABLE)
+    return value
+
+
+DescriptorName = Annotated[DescriptorType, BeforeValidator(_refuse_surf)]
+"""A descriptor type in a plugin config; asking for SURF gets the reason it is missing."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +134,9 @@ class LocalFeatureExtractor:
     :param max_features: keep at most this many, strongest first.
     :param grid: (rows, cols) bucketing so features cover the image; None keeps the
         globally strongest.
+    :param scale: resize the image by this factor before detection (e.g. 4 for 64x32
+        thumbnails, where detectors find almost nothing at native size); keypoints and
+        sizes are reported in the original image's pixels.
     """
 
     def __init__(
@@ -131,11 +145,15 @@ class LocalFeatureExtractor:
         detector: DetectorType = "native",
         max_features: int = 1000,
         grid: tuple[int, int] | None = None,
+        scale: float = 1.0,
     ) -> None:
+        if scale <= 0:
+            raise ValueError(f"scale must be > 0, got {scale}")
         self.spec = DESCRIPTORS[descriptor]
         self.descriptor_type = descriptor
         self.max_features = max_features
         self.grid = grid
+        self.scale = scale
         oversample = max_features * 4 if grid else max_features
         self._describer = self.spec.create(oversample)
         if detector == "native":
@@ -147,6 +165,9 @@ class LocalFeatureExtractor:
 
     def extract(self, grey: np.ndarray) -> LocalFeatures:
         """Features of a uint8 ``(H, W)`` image (an image with none gives N = 0)."""
+        if self.scale != 1.0:
+            interpolation = cv2.INTER_LINEAR if self.scale > 1 else cv2.INTER_AREA
+            grey = cv2.resize(grey, None, fx=self.scale, fy=self.scale, interpolation=interpolation)
         keypoints = list(self._detector.detect(grey, None))
         if self.grid:
             keypoints = _strongest_per_cell(keypoints, grey.shape[:2], self.grid, self.max_features)
@@ -163,8 +184,12 @@ class LocalFeatureExtractor:
         descriptors = descriptors[order].astype(self.spec.dtype, copy=False)
         if self.descriptor_type == "rootsift":
             descriptors = _root_sift(descriptors)
+        # back to the original pixels: the centre of pixel x at this scale is (x + 0.5) / s - 0.5
         points = np.array([kp.pt for kp in keypoints], dtype=np.float32).reshape(-1, 2)
-        info = np.array([(kp.size, kp.angle, kp.response, kp.octave) for kp in keypoints], dtype=np.float32)
+        points = (points + 0.5) / self.scale - 0.5 if self.scale != 1.0 else points
+        info = np.array(
+            [(kp.size / self.scale, kp.angle, kp.response, kp.octave) for kp in keypoints], dtype=np.float32
+        )
         return LocalFeatures(points, info.reshape(-1, 4), np.ascontiguousarray(descriptors), self.spec.metric)
 
     def _empty(self) -> LocalFeatures:

@@ -419,6 +419,49 @@ class KeyframeMap(Message):
         return [("keyframes", foxglove.poses_in_frame(self.poses, stamp_ns))]
 
 
+@dataclass(frozen=True, eq=False)
+class BowStatistics(Message):
+    """A bag-of-words loop detector's state after one frame (vocabulary, memory, filter, time).
+
+    Counts refer to the state after the frame was processed. Float fields are NaN
+    where they do not apply (no features; no other rule tracked).
+    """
+
+    schema_name: ClassVar[str] = "slamfront.BowStatistics"
+    frame: int
+    n_features: int
+    new_words: int
+    vocabulary_size: int
+    """Words kept so far, in working or long-term memory (the seed's fig. 4)."""
+    active_words: int
+    """Words the nearest-word search scans (those of STM and WM places)."""
+    quantisation_error: float
+    """Mean distance of the frame's features to their words (the seed's fig. 6)."""
+    update_rule: str = "greedy"
+    other_rule: str = ""
+    """The other update rule, when the detector also tracks its vocabulary for comparison."""
+    other_vocabulary_size: int = -1
+    other_quantisation_error: float = float("nan")
+    place: int = -1
+    """The place this frame created or was merged into; -1 for none (no features, a query)."""
+    merged: bool = False
+    """The frame was more similar than T_sim to the previous one and merged into its place."""
+    stm_size: int = 0
+    wm_size: int = 0
+    """Places in working memory after this frame (the seed's fig. 9a)."""
+    ltm_size: int = 0
+    transferred: int = 0
+    retrieved: int = 0
+    no_loop_posterior: float = float("nan")
+    max_loop_posterior: float = float("nan")
+    """The largest p(S_t = i) (the seed's fig. 7)."""
+    loop_threshold: float = float("nan")
+    """T_loop: a loop is accepted when ``no_loop_posterior`` is below it."""
+    processing_seconds: float = 0.0
+    """This frame's detector time (the seed's fig. 9b)."""
+    time_budget_seconds: float = 0.0
+
+
 # --- geometry and the back end --------------------------------------------------------
 
 

@@ -114,10 +114,10 @@ class LocalBackend:
                 while queue or suspects or in_flight:
                     if suspects and not in_flight:
                         task = suspects.popleft()
-                        in_flight[pool.submit(run_one, task)] = task
+                        in_flight[_submit(pool, task)] = task
                     while not suspects and queue and len(in_flight) < self.workers:
                         task = queue.popleft()
-                        in_flight[pool.submit(run_one, task)] = task
+                        in_flight[_submit(pool, task)] = task
                     done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                     lost: list[RunTask] = []
                     for future in done:
@@ -139,6 +139,18 @@ class LocalBackend:
             finally:
                 if in_flight:
                     self._stop(kill=True)
+
+
+def _submit(pool: ProcessPoolExecutor, task: RunTask) -> Future[RunOutcome]:
+    """``pool.submit``, except that a pool a worker broke since the last ``wait`` gives a
+    future that has failed with ``BrokenProcessPool``: the run loop then restarts the pool
+    and reruns the task, exactly as for a task that was in flight when the worker died."""
+    try:
+        return pool.submit(run_one, task)
+    except BrokenProcessPool as exc:
+        failed: Future[RunOutcome] = Future()
+        failed.set_exception(exc)
+        return failed
 
 
 class RayBackend:

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import slamfront
 from slamfront.cli import (
+    compare_cmd,
     datasets_cmd,
     diff_cmd,
     eval_cmd,
@@ -30,8 +31,20 @@ from slamfront.cli import (
 from slamfront.errors import SlamfrontError
 
 COMMANDS = (
-    run_cmd, replay_cmd, sweep_cmd, plugins_cmd, inspect_cmd, diff_cmd, recover_cmd, recipes_cmd, retrieval_cmd,
-    datasets_cmd, eval_cmd, optimize_cmd, outliers_cmd,
+    run_cmd,
+    replay_cmd,
+    sweep_cmd,
+    compare_cmd,
+    eval_cmd,
+    retrieval_cmd,
+    plugins_cmd,
+    inspect_cmd,
+    diff_cmd,
+    recover_cmd,
+    recipes_cmd,
+    datasets_cmd,
+    optimize_cmd,
+    outliers_cmd,
 )
 
 

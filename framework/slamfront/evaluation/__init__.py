@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from slamfront.evaluation.backend import BackendEvaluation
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.evaluation.bow import BowEvaluation
 from slamfront.evaluation.frames import FrameOverview
 from slamfront.evaluation.localization import LocalizationEvaluation
 from slamfront.evaluation.loops import LoopClosureEvaluation
@@ -22,6 +23,7 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
         chosen.append(DescriptorRetrieval())
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
+        chosen.append(BowEvaluation())  # reports only when a detector emits BowStatistics
     if "localizer" in kinds:
         chosen.append(LocalizationEvaluation())
     if "backend" in kinds:

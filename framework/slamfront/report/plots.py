@@ -225,6 +225,36 @@ def _save_panels(plt: Any, fig: Any, axes: np.ndarray, used: int, title: str, pa
     return path
 
 
+def series_panels(
+    panels: Sequence[tuple[str, Mapping[str, tuple[np.ndarray, np.ndarray]], Mapping[str, float]]],
+    path: Path,
+    title: str = "",
+    xlabel: str = "frame",
+) -> Path:
+    """Stacked line plots sharing the x axis, one per ``(y label, {label: (x, y)}, {line label: y})``.
+
+    The last mapping draws horizontal reference lines (a threshold, a time budget).
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7, 2.4 * len(panels) + 0.6), dpi=110, sharex=True, squeeze=False)
+    for ax, (ylabel, series, lines) in zip(axes[:, 0], panels):
+        for label, (x, y) in series.items():
+            ax.plot(x, y, label=label, linewidth=0.9)
+        for label, value in lines.items():
+            ax.axhline(value, color="tab:red", linestyle="--", linewidth=0.9, label=label)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        if len(series) + len(lines) > 1:
+            ax.legend(fontsize=7, loc="best")
+    axes[-1, 0].set_xlabel(xlabel)
+    if title:
+        axes[0, 0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def distance_histograms(
     samples: Mapping[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str = ""
 ) -> Path:

@@ -5,16 +5,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from functools import cached_property
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, model_validator
 
 from slamfront import Descriptor, PluginConfig, StageInputs
-from slamfront.local_features import (
-    DESCRIPTORS,
-    SURF_UNAVAILABLE,
-    DescriptorType,
-    DetectorType,
-    LocalFeatureExtractor,
-)
+from slamfront.local_features import DESCRIPTORS, DescriptorName, DetectorType, LocalFeatureExtractor
 from slamfront.messages import Features
 
 
@@ -31,7 +25,7 @@ class LocalFeaturesDescriptor(Descriptor):
     produces_local = True
 
     class Config(PluginConfig):
-        descriptor: DescriptorType = Field("orb", description="descriptor type")
+        descriptor: DescriptorName = Field("orb", description="descriptor type (SURF is not available: see the docs)")
         detector: DetectorType = Field(
             "native", description="keypoint detector: the descriptor's own, or fast/agast/gftt/orb/sift/brisk"
         )
@@ -39,13 +33,9 @@ class LocalFeaturesDescriptor(Descriptor):
         grid: tuple[int, int] | None = Field(
             None, description="(rows, cols) bucketing: strongest features per cell, spread over the image"
         )
-
-        @field_validator("descriptor", mode="before")
-        @classmethod
-        def _no_surf(cls, value: object) -> object:
-            if isinstance(value, str) and value.lower() == "surf":
-                raise ValueError(SURF_UNAVAILABLE)
-            return value
+        scale: float = Field(
+            1.0, gt=0, le=8, description="resize the image by this factor before detection (e.g. 4 for 64x32 thumbnails)"
+        )
 
         @model_validator(mode="after")
         def _detector_for_describe_only(self) -> LocalFeaturesDescriptor.Config:
@@ -56,7 +46,7 @@ class LocalFeaturesDescriptor(Descriptor):
     @cached_property
     def extractor(self) -> LocalFeatureExtractor:
         c = self.config
-        return LocalFeatureExtractor(c.descriptor, c.detector, c.max_features, c.grid)
+        return LocalFeatureExtractor(c.descriptor, c.detector, c.max_features, c.grid, c.scale)
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         found = self.extractor.extract(inputs.frame.gray())

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
+from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
 from slamfront.imageio import list_images, read_image
@@ -23,7 +24,10 @@ class ImageFolder(Source):
     Relative folders are looked up under the data root (``$SLAMFRONT_DATA``). Timestamps
     are ``index / fps`` (or the pose file's, for TUM poses). Optionally a pose file gives
     each image's ground-truth camera-to-world pose (one per image in the folder, in
-    order) and ``camera`` its intrinsics: an RGB-only sequence for the localizer.
+    order) and ``camera`` its intrinsics: an RGB-only sequence for the localizer. Loop
+    ground truth is optional too: groups of image names that show the same place, inline
+    (``loops``) or in a text file (``loops_file``, one group per line, ``#`` starts a
+    comment); a later image of a group revisits the earlier ones.
     """
 
     name = "image_folder"
@@ -43,6 +47,12 @@ class ImageFolder(Source):
         )
         camera: Intrinsics | KnownCamera | None = Field(
             None, description="intrinsics (fx/fy/cx/cy or a known camera name), if known"
+        )
+        loops: list[list[str]] = Field(
+            default_factory=list, description="groups of image names showing the same place (loop ground truth)"
+        )
+        loops_file: DataPath | None = Field(
+            None, description="text file of such groups, one per line: names separated by spaces"
         )
 
     @cached_property
@@ -99,3 +109,39 @@ class ImageFolder(Source):
                 camera=self._camera(image),
                 pose=None if trajectory is None else trajectory.poses[position],
             )
+
+    def _groups(self) -> list[tuple[str, list[str]]]:
+        """(where it was written, names) of every group of same-place images."""
+        groups = [(f"source.params.loops[{k}]", list(group)) for k, group in enumerate(self.config.loops)]
+        path = self.config.loops_file
+        if path is not None:
+            try:
+                lines = Path(path).read_text().splitlines()
+            except OSError as exc:
+                raise DataError(f"{path}: cannot read the loop labels: {exc.strerror or exc}") from exc
+            for number, line in enumerate(lines, start=1):
+                names = line.split("#", 1)[0].split()
+                if names:
+                    groups.append((f"{path}:{number}", names))
+        return groups
+
+    def loop_ground_truth(self) -> LoopGroundTruth | None:
+        groups = self._groups()
+        if not groups:
+            return None
+        index = {path.name: k for k, path in enumerate(self.files)}
+        rows: list[set[int]] = [set() for _ in self.files]
+        for where, names in groups:
+            if len(names) < 2:
+                raise DataError(f"{where}: a loop group needs at least two image names, got {names}")
+            unknown = [name for name in names if name not in index]
+            if unknown:
+                raise DataError(
+                    f"{where}: {', '.join(unknown)} not among the frames of {self.config.folder} "
+                    f"(after pattern/start/step/limit)"
+                )
+            frames = sorted(index[name] for name in names)
+            for k, later in enumerate(frames):
+                rows[later].update(frames[:k])
+        queries = np.arange(len(self.files), dtype=np.int64)
+        return LoopGroundTruth.from_rows(queries, [np.array(sorted(r), dtype=np.int64) for r in rows])

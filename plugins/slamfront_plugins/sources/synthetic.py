@@ -149,17 +149,19 @@ class SyntheticWorld(Source):
         if c.mode == "paired":
             return self._paired_truth(c.tolerance)
         schedule = self.schedule()
-        # stream: a frame revisits every frame given before it, of another lap, within the radius along
-        # the route (in a shuffled stream also of its own lap: it was not just there)
+        # stream: a frame revisits every frame given before it within the radius along the
+        # (closed) route that it reached by driving at least half the route since: frames of
+        # earlier laps, and the start of its own lap when the lap closes. In a shuffled
+        # stream every frame given before it at that place counts: it was not just there.
         reach = int(np.floor(c.revisit_radius_m / self.step_m))
-        laps = np.array([p for p, _ in schedule], dtype=np.int64)
         ks = np.array([k for _, k in schedule], dtype=np.int64)
         rows = []
         for frame in range(len(schedule)):
             gap = np.abs(ks[:frame] - ks[frame])
             near = np.minimum(gap, n - gap) <= reach
-            other = laps[:frame] != laps[frame] if not c.shuffle else np.ones(frame, dtype=bool)
-            rows.append(np.flatnonzero(near & other).astype(np.int64))
+            if not c.shuffle:
+                near &= frame - np.arange(frame) >= n / 2
+            rows.append(np.flatnonzero(near).astype(np.int64))
         return LoopGroundTruth.from_rows(np.arange(len(schedule)), rows)
 
     def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:

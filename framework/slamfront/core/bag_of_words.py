@@ -1,0 +1,91 @@
+"""Bags of visual words and the seed 001 image similarity (eq. 5), with an inverted index.
+
+A bag is the multiset of word ids of an image's features. Two bags share a *pair* for
+every feature of one that can be paired with a feature of the other on the same word:
+``N_pair = sum_w min(count_a(w), count_b(w))``. The similarity divides it by the larger
+bag: ``sim = N_pair / max(|a|, |b|)``, in [0, 1].
+
+RTAB-Map counts only words seen exactly once in both signatures; the seed speaks of
+"common word pairs" without that restriction, so repeated words pair up to the smaller
+count here.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable
+
+import numpy as np
+
+from slamfront.core.errors import CoreError
+
+
+def bag_of(words: Iterable[int]) -> Counter[int]:
+    """The bag of an image: word id -> number of its features quantised to it."""
+    return Counter(int(w) for w in words)
+
+
+def similarity(a: Counter[int], b: Counter[int]) -> float:
+    """Seed eq. 5: shared word pairs over the larger bag size (0 when either is empty)."""
+    size = max(sum(a.values()), sum(b.values()))
+    if size == 0:
+        return 0.0
+    small, large = (a, b) if len(a) <= len(b) else (b, a)
+    pairs = sum(min(count, large[word]) for word, count in small.items() if word in large)
+    return pairs / size
+
+
+class InvertedIndex:
+    """Word -> places that contain it, so one image is compared with every place at once.
+
+    Cost per query: the total length of the posting lists of the image's words, not
+    the number of places.
+    """
+
+    def __init__(self) -> None:
+        self._postings: dict[int, dict[int, int]] = {}
+        self._bags: dict[int, Counter[int]] = {}
+        self._sizes: dict[int, int] = {}
+
+    def __len__(self) -> int:
+        return len(self._bags)
+
+    def __contains__(self, place: int) -> bool:
+        return place in self._bags
+
+    def places(self) -> np.ndarray:
+        """(M,) int64 the indexed place ids, sorted."""
+        return np.array(sorted(self._bags), dtype=np.int64)
+
+    def add(self, place: int, bag: Counter[int]) -> None:
+        if place in self._bags:
+            raise CoreError(f"place {place} is already indexed")
+        self._bags[place] = bag
+        self._sizes[place] = sum(bag.values())
+        for word, count in bag.items():
+            self._postings.setdefault(word, {})[place] = count
+
+    def remove(self, place: int) -> Counter[int]:
+        """Take a place out of the index; returns its bag."""
+        bag = self._bags.pop(place)
+        del self._sizes[place]
+        for word in bag:
+            posting = self._postings[word]
+            del posting[place]
+            if not posting:
+                del self._postings[word]
+        return bag
+
+    def similarities(self, bag: Counter[int], places: np.ndarray) -> np.ndarray:
+        """(M,) seed eq. 5 similarity of ``bag`` to each of ``places`` (all indexed)."""
+        pairs: dict[int, int] = {}
+        for word, count in bag.items():
+            for place, stored in self._postings.get(word, {}).items():
+                pairs[place] = pairs.get(place, 0) + min(count, stored)
+        size = sum(bag.values())
+        out = np.zeros(len(places))
+        for k, place in enumerate(np.asarray(places).tolist()):
+            shared = pairs.get(place, 0)
+            if shared:
+                out[k] = shared / max(size, self._sizes[place])
+        return out

@@ -1,0 +1,208 @@
+"""SeqSLAM (Milford & Wyeth 2012) as OpenSeqSLAM (Suenderhauf et al. 2013) computes it.
+
+The steps, each a function on arrays:
+
+1. :func:`patch_normalise`: every ``side`` x ``side`` patch of the thumbnail becomes
+   ``127 + round((p - mean) / std)`` (sample std, MATLAB rounding, uint8 saturation;
+   a flat patch becomes 0, as MATLAB's ``uint8(NaN)``).
+2. :func:`difference_columns`: the difference matrix ``D[r, q]``, mean absolute
+   difference between reference ``r`` and query ``q`` (rows: references).
+3. :func:`enhance_contrast`: local contrast enhancement along the reference axis,
+   ``(D[r, q] - mean(D[w(r), q])) / std(D[w(r), q])`` over the window
+   ``w(r) = r - R/2 .. r + R/2`` (clipped at the ends, sample std). Each query column is
+   enhanced on its own, so columns can be computed in any chunking, or one at a time.
+4. :func:`sequence_scores`: for a query ``N``, the best straight trajectory through the
+   enhanced columns ``N - ds/2 .. N + ds/2`` starting at every reference row, over the
+   velocities ``vmin .. vmax`` (:func:`trajectory_offsets`); a trajectory leaving the
+   reference costs infinity.
+5. :func:`best_match`: the best start row, and the uniqueness ratio
+   ``best / second best outside a window of Rwindow rows`` (lower is surer). The match is
+   the start row + ``ds/2``, as OpenSeqSLAM reports it.
+
+OpenSeqSLAM shifts the enhanced matrix so its global minimum is 0 before step 4; the
+shift cannot be known before the last query, so online use replaces it by the lowest
+value an enhanced entry can take (:func:`enhanced_lower_bound`). The best match does not
+depend on the shift; the ratio does, slightly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from slamfront.core.errors import CoreError
+
+
+def matlab_round(values: np.ndarray) -> np.ndarray:
+    """Round half away from zero, as MATLAB's ``round`` (NumPy rounds half to even)."""
+    return np.sign(values) * np.floor(np.abs(values) + 0.5)
+
+
+def patch_normalise(image: np.ndarray, side: int = 8) -> np.ndarray:
+    """OpenSeqSLAM's patch normalisation of a uint8 grey image (H, W) -> uint8 (H, W).
+
+    Only whole patches are normalised; a border narrower than ``side`` is left as it
+    is, as in ``patchNormalize.m``.
+    """
+    if image.ndim != 2:
+        raise CoreError(f"patch normalisation needs a grey image, got shape {image.shape}")
+    out = image.copy()
+    rows, cols = (image.shape[0] // side) * side, (image.shape[1] // side) * side
+    if rows == 0 or cols == 0:
+        raise CoreError(f"image {image.shape[1]}x{image.shape[0]} is smaller than one {side}x{side} patch")
+    blocks = image[:rows, :cols].astype(np.float64).reshape(rows // side, side, cols // side, side)
+    mean = blocks.mean(axis=(1, 3), keepdims=True)
+    std = blocks.std(axis=(1, 3), ddof=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        normalised = 127.0 + matlab_round((blocks - mean) / std)
+    normalised = np.where(std > 0, np.clip(normalised, 0, 255), 0.0)  # uint8(NaN) is 0
+    out[:rows, :cols] = normalised.reshape(rows, cols).astype(np.uint8)
+    return out
+
+
+def difference_columns(references: np.ndarray, queries: np.ndarray, max_elements: int = 1 << 25) -> np.ndarray:
+    """(R, Q) float32 mean absolute differences between reference and query vectors.
+
+    :param references: (R, P) descriptors (e.g. patch-normalised thumbnails).
+    :param queries: (Q, P).
+    :param max_elements: bound on the temporary arrays (float path), in elements.
+
+    uint8 inputs (thumbnails) take OpenCV's SIMD absolute difference with exact integer
+    sums; others a chunked float32 NumPy path. Either way each entry is computed the
+    same whatever the chunking, so batch and online use give identical bits.
+    """
+    references = np.asarray(references)
+    queries = np.atleast_2d(np.asarray(queries))
+    if references.shape[1] != queries.shape[1]:
+        raise CoreError(
+            f"reference and query descriptors differ in length: {references.shape[1]} vs {queries.shape[1]}"
+        )
+    n_ref, pixels = references.shape
+    out = np.empty((n_ref, len(queries)), dtype=np.float32)
+    if references.dtype == np.uint8 and queries.dtype == np.uint8:
+        for j, query in enumerate(queries):
+            absolute = cv2.absdiff(references, np.broadcast_to(query, references.shape).copy())
+            out[:, j] = cv2.reduce(absolute, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[:, 0]
+        out /= np.float32(pixels)
+        return out
+    references = references.astype(np.float32, copy=False)
+    queries = queries.astype(np.float32, copy=False)
+    chunk = max(1, max_elements // max(n_ref * pixels, 1))
+    for start in range(0, len(queries), chunk):
+        block = queries[start : start + chunk]
+        out[:, start : start + len(block)] = np.abs(references[:, None, :] - block[None, :, :]).sum(
+            axis=2, dtype=np.float32
+        )
+    out /= np.float32(pixels)
+    return out
+
+
+def enhance_contrast(differences: np.ndarray, window: int = 10) -> np.ndarray:
+    """(R, Q) float32 locally contrast-enhanced differences (OpenSeqSLAM's ``R`` = window).
+
+    Entries whose window has no spread (std 0) become 0.
+    """
+    d = np.asarray(differences, dtype=np.float64)
+    n = len(d)
+    if n < 2:
+        raise CoreError("contrast enhancement needs at least 2 references")
+    half = window // 2
+    rows = np.arange(n)
+    lo = np.maximum(rows - half, 0)
+    hi = np.minimum(rows + half, n - 1) + 1
+    count = (hi - lo)[:, None].astype(np.float64)
+    zero = np.zeros((1, d.shape[1]))
+    csum = np.concatenate([zero, np.cumsum(d, axis=0)])
+    csq = np.concatenate([zero, np.cumsum(d * d, axis=0)])
+    total = csum[hi] - csum[lo]
+    squares = csq[hi] - csq[lo]
+    mean = total / count
+    variance = np.maximum(squares - count * mean * mean, 0.0) / np.maximum(count - 1, 1)
+    std = np.sqrt(variance)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        enhanced = np.where(std > 1e-12, (d - mean) / std, 0.0)
+    return enhanced.astype(np.float32)
+
+
+def enhanced_lower_bound(window: int = 10) -> float:
+    """The lowest value :func:`enhance_contrast` can give: ``-(n - 1) / sqrt(n)`` for a
+    window of ``n = window + 1`` samples (a z-score with sample std)."""
+    n = window + 1
+    return -(n - 1) / np.sqrt(n)
+
+
+def trajectory_offsets(ds: int, vmin: float, vmax: float) -> np.ndarray:
+    """(V, ds + 1) reference-row offsets of the straight trajectories SeqSLAM tries.
+
+    As ``findSingleMatch``: moves ``vmin*ds, vmin*ds + 1, ..., <= vmax*ds`` give velocities
+    ``v = move / ds`` and offsets ``floor(k * v)`` for ``k = 0 .. ds``.
+    """
+    if ds < 2 or ds % 2:
+        raise CoreError(f"ds must be an even number >= 2, got {ds}")
+    if not 0 < vmin <= vmax:
+        raise CoreError(f"need 0 < vmin <= vmax, got {vmin}, {vmax}")
+    moves = np.arange(vmin * ds, vmax * ds + 1e-9, 1.0)
+    velocities = moves / ds
+    steps = np.arange(ds + 1)
+    return np.floor(steps[None, :] * velocities[:, None] + 1e-9).astype(np.int64)
+
+
+def sequence_scores(columns: np.ndarray, offsets: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """Best trajectory cost for every start row.
+
+    :param columns: (R, ds + 1) enhanced (and shifted) differences of the query window.
+    :param offsets: (V, ds + 1) from :func:`trajectory_offsets`.
+    :param rows: optional sorted start rows to score (others get inf); all when None.
+    :returns: (R,) cost of the best trajectory starting at each row (inf: leaves the map).
+    """
+    n_ref, width = columns.shape
+    if offsets.shape[1] != width:
+        raise CoreError(f"offsets span {offsets.shape[1]} columns but the window has {width}")
+    reach = int(offsets.max())
+    padded = np.concatenate([columns, np.full((reach + 1, width), np.inf, dtype=columns.dtype)])
+    best = np.full(n_ref, np.inf, dtype=np.float64)
+    if rows is None:
+        for trajectory in offsets:
+            cost = np.zeros(n_ref, dtype=np.float64)
+            for k, offset in enumerate(trajectory):
+                cost += padded[offset : offset + n_ref, k]
+            np.minimum(best, cost, out=best)
+        return best
+    rows = np.asarray(rows, dtype=np.int64)
+    if len(rows) * 8 > n_ref:
+        # a gather costs several times a contiguous add: sweep everything, keep the rows asked for
+        every = sequence_scores(columns, offsets)
+        best[rows] = every[rows]
+        return best
+    picked = padded[rows[:, None, None] + offsets[None, :, :], np.arange(width)[None, None, :]]
+    best[rows] = picked.sum(axis=2, dtype=np.float64).min(axis=1)
+    return best
+
+
+@dataclass(frozen=True)
+class SequenceMatch:
+    """The answer for one query: best start row, reported reference row, uniqueness ratio."""
+
+    start: int
+    reference: int
+    ratio: float
+
+
+def best_match(scores: np.ndarray, ds: int, rwindow: int = 10) -> SequenceMatch | None:
+    """The lowest-cost start row and its ratio to the best one outside ``rwindow``.
+
+    None when no trajectory stays inside the map or nothing lies outside the window.
+    """
+    if len(scores) == 0 or not np.isfinite(scores).any():
+        return None
+    start = int(np.argmin(scores))
+    lo, hi = max(0, start - rwindow // 2), min(len(scores), start + rwindow // 2 + 1)
+    outside = np.concatenate([scores[:lo], scores[hi:]])
+    if len(outside) == 0:
+        return None
+    second = float(outside.min())
+    best = float(scores[start])
+    ratio = best / second if second > 0 else (0.0 if best == 0 and second == 0 else 1.0)
+    return SequenceMatch(start=start, reference=start + ds // 2, ratio=float(ratio))

@@ -1,0 +1,411 @@
+"""The ``bow_bayes`` loop detector: seed 001's online vocabulary, Bayes filter and memory."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
+from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
+from slamfront.core.errors import CoreError
+from slamfront.core.memory import MemoryManager, MemoryParameters
+from slamfront.core.vocabulary import OnlineVocabulary, Quantisation, UpdateRule, VocabularyThresholds
+from slamfront.local_features import DESCRIPTORS, DescriptorName
+from slamfront.messages import BowStatistics, Features, LoopResult, Message
+from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
+
+
+@dataclass
+class _Place:
+    """What the detector keeps of a place: the frames it covers and its words."""
+
+    first_frame: int
+    bag: Counter[int]
+    words: np.ndarray
+    other_words: np.ndarray | None
+    last_frame: int = -1
+    """The last frame merged into it (T_sim); -1: none."""
+
+    @property
+    def frame(self) -> int:
+        """The frame a loop to this place reports: the middle of the frames it covers.
+
+        The seed keeps the first image of a run of similar ones and drops the rest, so a
+        place stands for all of them; the middle one is never more than half the run
+        away from the frame the robot actually revisits.
+        """
+        return self.first_frame if self.last_frame < 0 else (self.first_frame + self.last_frame) // 2
+
+
+@dataclass
+class _Vocabularies:
+    """The vocabulary the detector uses, and the other rule's one tracked for comparison."""
+
+    main: OnlineVocabulary
+    other: OnlineVocabulary | None
+
+
+class BowBayes(LoopDetector):
+    """Bag-of-words loop closure with a greedy online vocabulary and a Bayes filter (seed 001).
+
+    Each frame's local features are quantised to an online vocabulary built by the
+    seed's greedy rule (``vocabulary_update: greedy``: largest nearest-word distance
+    first, T_ND1 / T_ND2 / T_NNDR) or RTAB-Map's ratio rule (``nndr``). A frame more
+    similar than T_sim to the previous one is merged into its place (no search; it
+    repeats the previous answer). Otherwise the frame's similarity to every place in
+    working memory feeds the Bayes filter; the answer is the most probable place with
+    confidence ``1 - p(no loop)``, accepted when ``p(no loop) < T_loop``. Memory
+    management (STM / WM / LTM, RTAB-Map style) keeps the newest places out of the
+    search and moves the lowest-weighted, oldest places out of it when a frame takes
+    longer than the time budget; neighbours of the best hypothesis come back from LTM.
+
+    Streams (one traversal revisiting places) and paired traversals (reference places,
+    then queries searched against them) both work. Frames with fewer than
+    ``min_features`` features (blank, black) get an explicit "no answer".
+    """
+
+    name = "bow_bayes"
+    requires = ("descriptor",)
+
+    class Config(PluginConfig):
+        vocabulary_update: UpdateRule = Field(
+            "greedy", description="greedy: the seed's rule (T_ND1/T_ND2/T_NNDR, largest ND first); nndr: RTAB-Map's"
+        )
+        compare_rules: bool = Field(
+            False, description="also build the other rule's vocabulary from the same frames (report figs 4 and 6)"
+        )
+        descriptor_type: DescriptorName | None = Field(
+            None, description="descriptor the vocabulary is built for (default: the local_features stage's)"
+        )
+        nndr_ratio: float = Field(0.8, gt=0, le=1, description="T_NNDR: new word when ND/NND is above this")
+        nd_low: float | None = Field(
+            None, ge=0, description="T_ND1 (greedy): below it the nearest word is used; default per descriptor type"
+        )
+        nd_high: float | None = Field(
+            None, ge=0, description="T_ND2 (greedy): above it the feature is a new word; default per descriptor type"
+        )
+        similarity_threshold: float = Field(
+            0.2, ge=0, le=1, description="T_sim: a frame more similar than this to the previous one is merged"
+        )
+        loop_threshold: float = Field(0.11, gt=0, le=1, description="T_loop: accept a loop when p(no loop) is below")
+        transition_sigma: float = Field(1.6, gt=0, description="Gaussian of the loop-to-loop transition, in places")
+        ignore_zero_similarities: bool = Field(
+            False, description="mean/std of the likelihood over non-zero similarities only (RTAB-Map's choice)"
+        )
+        min_features: int = Field(5, ge=1, description="frames with fewer features get 'no answer'")
+        stm_size: int = Field(10, ge=0, description="newest places kept out of the search (STM)")
+        time_budget_s: float = Field(
+            0.7, ge=0, description="T_time: over it, places move from WM to LTM (seed: 0.7 s at 1 Hz; 0 = none)"
+        )
+        max_working_memory: int = Field(0, ge=0, description="also cap WM at this many places (0 = no cap)")
+        max_retrieved: int = Field(2, ge=0, description="places brought back from LTM per frame")
+        retrieval_radius: int = Field(3, ge=0, description="neighbours of the best hypothesis retrieved / kept")
+        candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
+
+        @model_validator(mode="after")
+        def _ordered_thresholds(self) -> BowBayes.Config:
+            if self.nd_low is not None and self.nd_high is not None and self.nd_low > self.nd_high:
+                raise ValueError(f"nd_low (T_ND1 = {self.nd_low}) must not exceed nd_high (T_ND2 = {self.nd_high})")
+            return self
+
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        c = self.config
+        self._descriptor_type: str | None = c.descriptor_type
+        self._memory = MemoryManager(
+            MemoryParameters(c.stm_size, c.time_budget_s, c.max_working_memory, c.max_retrieved, c.retrieval_radius)
+        )
+        self._filter = BayesFilter(
+            BayesParameters(sigma=c.transition_sigma, loop_threshold=c.loop_threshold,
+                            ignore_zero_similarities=c.ignore_zero_similarities)
+        )
+        self._index = InvertedIndex()
+        self._vocabularies: _Vocabularies | None = None
+        self._places: dict[int, _Place] = {}
+        self._previous_bag: dict[str, Counter[int]] = {}
+        self._last_place: int | None = None
+        self._last_answer: dict[str, LoopResult] = {}
+        self._queries_started = False
+        self._counts = Counter[str]()
+        self.clock: Callable[[], float] = time.perf_counter
+        """Seconds, for the time budget; tests swap in a modelled clock to be deterministic."""
+
+    # --- set-up -------------------------------------------------------------------
+
+    @property
+    def other_rule(self) -> UpdateRule:
+        return "nndr" if self.config.vocabulary_update == "greedy" else "greedy"
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        descriptor = stages["descriptor"]
+        if not getattr(descriptor, "produces_local", False):
+            raise PluginError(f"needs local features; descriptor {descriptor.name!r} produces none")
+        given = getattr(descriptor.config, "descriptor", None)
+        if given is not None and self.config.descriptor_type is not None and given != self.config.descriptor_type:
+            raise PluginError(
+                f"the vocabulary is built for {self.config.descriptor_type} descriptors "
+                f"(loop_detector.params.descriptor_type) but the descriptor stage gives {given}"
+            )
+        self._descriptor_type = self.config.descriptor_type or given
+        self.thresholds()  # fail now, not at the first frame
+
+    def thresholds(self) -> VocabularyThresholds:
+        """T_NNDR, T_ND1, T_ND2 in use: the configured ones, else the descriptor type's defaults."""
+        c = self.config
+        defaults = ND_THRESHOLDS.get(self._descriptor_type or "")
+        if (c.nd_low is None or c.nd_high is None) and defaults is None:
+            raise PluginError(
+                "no default T_ND1/T_ND2 for this descriptor: set loop_detector.params.nd_low and nd_high, "
+                f"or descriptor_type (one of {', '.join(ND_THRESHOLDS)})"
+            )
+        low = c.nd_low if c.nd_low is not None else defaults[0]  # type: ignore[index]
+        high = c.nd_high if c.nd_high is not None else defaults[1]  # type: ignore[index]
+        try:
+            return VocabularyThresholds(c.nndr_ratio, low, high)
+        except CoreError as exc:
+            raise PluginError(f"loop_detector.params: {exc}") from exc
+
+    def _vocabulary_for(self, features: Features) -> _Vocabularies:
+        """The vocabularies, created from the first frame's descriptors; later frames must fit them."""
+        descriptors = features.descriptors
+        assert descriptors is not None
+        if self._vocabularies is None:
+            expected = DESCRIPTORS.get(self._descriptor_type or "")
+            if expected is not None and (
+                descriptors.shape[1] != expected.length or descriptors.dtype != np.dtype(expected.dtype)
+            ):
+                raise PluginError(
+                    f"frame {features.frame}: the vocabulary is built for {self._descriptor_type} "
+                    f"({expected.length}-long {np.dtype(expected.dtype)}) but got {descriptors.shape[1]}-long "
+                    f"{descriptors.dtype} descriptors"
+                )
+            if features.metric not in ("l2", "hamming"):
+                raise PluginError(f"frame {features.frame}: needs l2 or hamming descriptors, got {features.metric!r}")
+            metric: Literal["l2", "hamming"] = features.metric  # type: ignore[assignment]
+            other = OnlineVocabulary(metric, descriptors.shape[1]) if self.config.compare_rules else None
+            self._vocabularies = _Vocabularies(OnlineVocabulary(metric, descriptors.shape[1]), other)
+        vocabularies = self._vocabularies
+        try:
+            vocabularies.main.check(descriptors)
+        except CoreError as exc:
+            built = f" ({self._descriptor_type})" if self._descriptor_type else ""
+            raise PluginError(f"frame {features.frame}: {exc}{built}") from exc
+        if features.metric != vocabularies.main.metric:
+            raise PluginError(
+                f"frame {features.frame}: {features.metric} descriptors for a {vocabularies.main.metric} vocabulary"
+            )
+        return vocabularies
+
+    # --- per frame ----------------------------------------------------------------
+
+    def process(self, inputs: StageInputs) -> Sequence[Message]:
+        frame = inputs.frame
+        features: Features = inputs.one("descriptor", Features)
+        if features.descriptors is None:
+            raise PluginError(f"frame {frame.index}: the descriptor stage gave no local features")
+        started = self.clock()
+        entered: list[int] = []
+        if frame.traversal == "query" and not self._queries_started:
+            # the reference traversal is over: every reference place becomes searchable
+            self._queries_started = True
+            entered += self._into_working(self._memory.flush())
+        descriptors = features.descriptors
+        n = len(descriptors)
+        if n < self.config.min_features:
+            self._counts["no_features"] += 1
+            reason = "no features" if n == 0 else f"only {n} features (min_features = {self.config.min_features})"
+            result = LoopResult(frame=frame.index, match=-1, confidence=0.0, accepted=False, reason=reason)
+            outputs: list[Message] = [] if frame.traversal == "reference" else [result]
+            transferred = self._transfer(self.clock() - started, len(entered), set())
+            stats = self._statistics(frame.index, n, None, None, -1, False, transferred, 0, None,
+                                     self.clock() - started)
+            return [*outputs, stats]
+
+        vocabularies = self._vocabulary_for(features)
+        rule = self.config.vocabulary_update
+        thresholds = self.thresholds()
+        other_seconds = 0.0
+        other: Quantisation | None = None
+        n_other = 0
+        if vocabularies.other is not None:
+            # the comparison vocabulary is not part of the method: keep it out of the time
+            tick = self.clock()
+            n_other = len(vocabularies.other)
+            other = vocabularies.other.update(descriptors, self.other_rule, thresholds)
+            other_seconds = self.clock() - tick
+        n_before = len(vocabularies.main)
+        quantised = vocabularies.main.update(descriptors, rule, thresholds)
+        bag = bag_of(quantised.words)
+
+        previous = self._previous_bag.get(frame.traversal)
+        similar = previous is not None and similarity(bag, previous) > self.config.similarity_threshold
+        merged = similar and frame.traversal != "query" and self._last_place is not None
+        keep = frame.traversal in ("stream", "reference") and not merged
+        place = -1
+        if keep:
+            place = len(self._places)
+            self._places[place] = _Place(frame.index, bag, quantised.words, None if other is None else other.words)
+            vocabularies.main.retain(quantised.words)
+            if vocabularies.other is not None and other is not None:
+                vocabularies.other.retain(other.words)
+            entered += self._into_working(self._memory.add(place))
+            self._last_place = place
+        else:
+            vocabularies.main.truncate(n_before)
+            if vocabularies.other is not None:
+                vocabularies.other.truncate(n_other)
+            bag = self._unkept_words_private(bag, n_before)
+            if merged:
+                place = int(self._last_place)  # type: ignore[arg-type]
+                self._memory.merge(place)
+                self._places[place].last_frame = frame.index
+                self._counts["merged"] += 1
+        if not similar:
+            self._previous_bag[frame.traversal] = bag
+
+        outputs = []
+        step: BayesStep | None = None
+        retrieved: list[int] = []
+        immune: set[int] = set()
+        if frame.traversal in ("stream", "query"):
+            if similar:
+                result = self._repeat_answer(frame.index, frame.traversal, place)
+            else:
+                step = self._search(bag)
+                result = self._answer(frame.index, step)
+                if step.best >= 0:
+                    retrieved = self._into_working(self._memory.retrieve(step.best), retrieved=True)
+                    immune = self._memory.immune_around(step.best) | set(retrieved)
+                self._last_answer[frame.traversal] = result
+            outputs.append(result)
+            self._counts["queries"] += 1
+            self._counts["accepted"] += int(result.accepted and result.match >= 0)
+        elapsed = self.clock() - started - other_seconds
+        transferred = self._transfer(elapsed, len(entered) + len(retrieved), immune)
+        stats = self._statistics(
+            frame.index, n, quantised, other, place, merged, transferred, len(retrieved), step, elapsed
+        )
+        return [*outputs, stats]
+
+    # --- steps --------------------------------------------------------------------
+
+    def _search(self, bag: Counter[int]) -> BayesStep:
+        hypotheses = self._memory.working()
+        similarities = self._index.similarities(bag, hypotheses)
+        if len(hypotheses):
+            self._counts["searches"] += 1
+        return self._filter.update(hypotheses, similarities)
+
+    def _answer(self, frame: int, step: BayesStep) -> LoopResult:
+        if step.best < 0:
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="no place in working memory")
+        ranked = step.hypotheses[np.argsort(-step.posterior, kind="stable")[: self.config.candidates]]
+        frames = np.array([self._places[int(p)].frame for p in ranked], dtype=np.int64)
+        return LoopResult(
+            frame=frame,
+            match=int(frames[0]),
+            confidence=float(np.clip(1.0 - step.no_loop, 0.0, 1.0)),
+            accepted=step.accepted,
+            candidates=frames,
+        )
+
+    def _repeat_answer(self, frame: int, traversal: str, place: int) -> LoopResult:
+        """A frame merged for T_sim is at the same place as the last one: same answer."""
+        last = self._last_answer.get(traversal)
+        note = f"similar to the previous frame (> T_sim = {self.config.similarity_threshold})"
+        if place >= 0:
+            note += f", merged into place {place}"
+        if last is None:
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason=note)
+        return LoopResult(
+            frame=frame, match=last.match, confidence=last.confidence, accepted=last.accepted,
+            candidates=last.candidates, reason=f"{note}: repeats frame {last.frame}'s answer",
+        )
+
+    def _unkept_words_private(self, bag: Counter[int], n_kept: int) -> Counter[int]:
+        """The words an unkept frame added are forgotten and their ids reused: in its bag
+        they become ids of their own (negative), counted in its size, shared with nothing."""
+        private = Counter[int]()
+        for word, count in bag.items():
+            if word >= n_kept:
+                self._counts["private_words"] += 1
+                word = -self._counts["private_words"]
+            private[word] = count
+        return private
+
+    def _into_working(self, places: list[int], retrieved: bool = False) -> list[int]:
+        """Index places that entered WM; places back from LTM take their words back too."""
+        for place in places:
+            record = self._places[place]
+            self._index.add(place, record.bag)
+            if retrieved:
+                self._retain(record)
+        self._counts["retrieved"] += len(places) if retrieved else 0
+        return places
+
+    def _transfer(self, elapsed: float, entered: int, immune: set[int]) -> list[int]:
+        transferred = self._memory.transfer(elapsed, entered, immune)
+        for place in transferred:
+            self._index.remove(place)
+            record = self._places[place]
+            assert self._vocabularies is not None
+            self._vocabularies.main.release(record.words)
+            if self._vocabularies.other is not None and record.other_words is not None:
+                self._vocabularies.other.release(record.other_words)
+        self._counts["transferred"] += len(transferred)
+        return transferred
+
+    def _retain(self, record: _Place) -> None:
+        assert self._vocabularies is not None
+        self._vocabularies.main.retain(record.words)
+        if self._vocabularies.other is not None and record.other_words is not None:
+            self._vocabularies.other.retain(record.other_words)
+
+    def _statistics(
+        self, frame: int, n_features: int, quantised: Quantisation | None, other: Quantisation | None,
+        place: int, merged: bool, transferred: list[int], retrieved: int, step: BayesStep | None, seconds: float,
+    ) -> BowStatistics:
+        vocabularies = self._vocabularies
+        return BowStatistics(
+            frame=frame,
+            n_features=n_features,
+            new_words=0 if quantised is None or place < 0 or merged else len(quantised.new_words),
+            vocabulary_size=0 if vocabularies is None else len(vocabularies.main),
+            active_words=0 if vocabularies is None else vocabularies.main.n_active,
+            quantisation_error=float("nan") if quantised is None else quantised.mean_error,
+            update_rule=self.config.vocabulary_update,
+            other_rule=self.other_rule if self.config.compare_rules else "",
+            other_vocabulary_size=-1 if vocabularies is None or vocabularies.other is None else len(vocabularies.other),
+            other_quantisation_error=float("nan") if other is None else other.mean_error,
+            place=place,
+            merged=merged,
+            stm_size=self._memory.n_stm,
+            wm_size=self._memory.n_wm,
+            ltm_size=self._memory.n_ltm,
+            transferred=len(transferred),
+            retrieved=retrieved,
+            no_loop_posterior=float("nan") if step is None else step.no_loop,
+            max_loop_posterior=float("nan") if step is None else step.best_probability,
+            loop_threshold=self.config.loop_threshold,
+            processing_seconds=seconds,
+            time_budget_seconds=self.config.time_budget_s,
+        )
+
+    def statistics(self) -> dict[str, int]:
+        return {
+            "n_searches": self._counts["searches"],
+            "n_places_reference": len(self._places),
+            "n_places_query": self._counts["queries"],
+            "n_loops_accepted": self._counts["accepted"],
+            "n_frames_merged": self._counts["merged"],
+            "n_frames_without_features": self._counts["no_features"],
+            "n_places_transferred": self._counts["transferred"],
+            "n_places_retrieved": self._counts["retrieved"],
+        }

@@ -1,0 +1,316 @@
+"""The ``seqslam`` and ``seqslam_fast`` loop detectors (OpenSeqSLAM and a Fast-SeqSLAM variant).
+
+Both compare a query traversal with a reference traversal (references first, as in the
+seed paper's protocol) through :mod:`slamfront.core.seqslam`. ``seqslam`` fills the whole
+difference matrix; ``seqslam_fast`` only the k nearest references of each query, and
+scores only the trajectories that pass through them.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping, Sequence
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.core.buffers import GrowingRows
+from slamfront.core.seqslam import (
+    best_match,
+    difference_columns,
+    enhance_contrast,
+    enhanced_lower_bound,
+    sequence_scores,
+    trajectory_offsets,
+)
+from slamfront.messages import Features, LoopResult
+
+
+class SeqSlamConfig(PluginConfig):
+    """Parameters shared by both variants; defaults are OpenSeqSLAM 2013's."""
+
+    ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, seed paper 40); even")
+    vmin: float = Field(0.8, gt=0, description="slowest trajectory, reference frames per query frame")
+    vmax: float = Field(1.2, gt=0, description="fastest trajectory")
+    contrast_window: int = Field(10, ge=2, description="R: rows of the local contrast enhancement window")
+    rwindow: int = Field(10, ge=0, description="rows around the best match excluded for the second best")
+    threshold: float = Field(0.1, ge=0, le=1, description="accept when confidence = 1 - ratio reaches this")
+    mode: Literal["batch", "online"] = Field(
+        "batch", description="batch: all queries, then match; online: answer each query ds/2 frames later"
+    )
+    score_offset: Literal["global_min", "bound"] = Field(
+        "global_min",
+        description="shift making scores >= 0: the matrix minimum (OpenSeqSLAM, batch only) or its lower bound",
+    )
+    candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
+    chunk: int = Field(256, ge=1, description="queries per block in batch mode (memory: references x chunk)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SeqSlamConfig:
+        if self.ds % 2:
+            raise ValueError(f"ds must be even (OpenSeqSLAM rounds {self.ds} up to {self.ds + 1})")
+        if self.vmin > self.vmax:
+            raise ValueError("vmin must not exceed vmax")
+        if self.mode == "online" and self.score_offset == "global_min":
+            raise ValueError("online mode cannot know the global minimum: use score_offset: bound")
+        return self
+
+
+class _SequenceDetector(LoopDetector):
+    """What both variants share: buffering, windows of query columns, answers."""
+
+    requires = ("descriptor",)
+    config: SeqSlamConfig
+
+    def __init__(self, config: SeqSlamConfig | None = None) -> None:
+        super().__init__(config)
+        c = self.config
+        self._offsets = trajectory_offsets(c.ds, c.vmin, c.vmax)
+        self._references: GrowingRows | None = None
+        self._reference_frames: list[int] = []
+        self._query_frames: list[int] = []
+        self._query_vectors: list[np.ndarray] = []
+        self._window: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=c.ds + 1)
+        self._pending: deque[int] = deque()
+        self._n_searches = 0
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        if not getattr(stages["descriptor"], "produces_global", False):
+            raise PluginError(f"needs a global descriptor; {stages['descriptor'].name!r} produces none")
+
+    # -- per-variant pieces ----------------------------------------------------------------
+
+    def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        """Enhanced difference columns (R, q) of some queries, and the rows worth scoring
+        for each (None: all rows)."""
+        raise NotImplementedError
+
+    # -- streaming ---------------------------------------------------------------------------
+
+    def process(self, inputs: StageInputs) -> Sequence[LoopResult]:
+        features: Features = inputs.one("descriptor", Features)
+        frame = inputs.frame
+        if features.vector is None:
+            raise PluginError(f"descriptor gave no global vector for frame {frame.index}")
+        if frame.traversal == "stream":
+            raise PluginError(
+                f"{self.name} matches a query traversal against a reference traversal; "
+                "this source yields one stream (use a paired source)"
+            )
+        if frame.traversal == "reference":
+            if self._query_frames:
+                raise PluginError(f"reference frame {frame.index} arrived after the queries started")
+            if self._references is None:
+                self._references = GrowingRows(len(features.vector), features.vector.dtype)
+            elif len(features.vector) != self._references.view.shape[1]:
+                raise PluginError(
+                    f"frame {frame.index}: descriptor length {len(features.vector)} differs from "
+                    f"{self._references.view.shape[1]} (images of different sizes?)"
+                )
+            self._references.append(features.vector)
+            self._reference_frames.append(frame.index)
+            return []
+        if self._references is not None and len(features.vector) != self._references.view.shape[1]:
+            raise PluginError(
+                f"frame {frame.index}: query descriptor length {len(features.vector)} differs from the "
+                f"references' {self._references.view.shape[1]} (images of different sizes?)"
+            )
+        self._query_frames.append(frame.index)
+        if self.config.mode == "batch":
+            self._query_vectors.append(features.vector)
+            return []
+        return self._online(frame.index, features.vector)
+
+    def _as_reference_type(self, vectors: np.ndarray) -> np.ndarray:
+        assert self._references is not None
+        return vectors.astype(self._references.view.dtype, copy=False)
+
+    def _no_answer(self, frame: int, reason: str) -> LoopResult:
+        return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason=reason)
+
+    def _too_few_references(self) -> str | None:
+        reach = int(self._offsets.max())
+        n = 0 if self._references is None else len(self._references)
+        if n < max(reach + 1, 2):
+            return f"the reference has {n} frames; a trajectory needs {reach + 1}"
+        return None
+
+    def _online(self, frame: int, vector: np.ndarray) -> list[LoopResult]:
+        half = self.config.ds // 2
+        problem = self._too_few_references()
+        if problem:
+            return [self._no_answer(frame, problem)]
+        column, rows = self._columns(self._as_reference_type(vector[None, :]))
+        self._window.append((frame, column[:, 0], rows[0]))
+        if len(self._query_frames) <= half:
+            return [self._no_answer(frame, f"among the first ds/2 = {half} queries")]
+        self._pending.append(frame)
+        if len(self._window) < self.config.ds + 1:
+            return []
+        middle = self._pending.popleft()
+        columns = np.stack([c for _, c, _ in self._window], axis=1)
+        return [self._answer(middle, columns, [r for _, _, r in self._window], enhanced_lower_bound(self.config.contrast_window))]
+
+    def finish(self) -> Sequence[LoopResult]:
+        if self.config.mode == "online":
+            half = self.config.ds // 2
+            return [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in self._pending]
+        return self._batch()
+
+    def _batch(self) -> list[LoopResult]:
+        c = self.config
+        half = c.ds // 2
+        frames = self._query_frames
+        problem = self._too_few_references()
+        if problem or len(frames) < c.ds + 1:
+            reason = problem or f"{len(frames)} queries are fewer than a sequence of ds + 1 = {c.ds + 1}"
+            return [self._no_answer(f, reason) for f in frames]
+        queries = self._as_reference_type(np.stack(self._query_vectors))
+        offset = enhanced_lower_bound(c.contrast_window)
+        if c.score_offset == "global_min":
+            offset = min(float(self._columns(queries[s : s + c.chunk])[0].min()) for s in range(0, len(queries), c.chunk))
+        results = [self._no_answer(f, f"among the first ds/2 = {half} queries") for f in frames[:half]]
+        for start in range(half, len(frames) - half, c.chunk):
+            stop = min(start + c.chunk, len(frames) - half)
+            columns, rows = self._columns(queries[start - half : stop + half])
+            for n in range(start, stop):
+                lo = n - start
+                results.append(self._answer(frames[n], columns[:, lo : lo + c.ds + 1], rows[lo : lo + c.ds + 1], offset))
+        results += [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in frames[len(frames) - half :]]
+        self._query_vectors.clear()
+        return results
+
+    def _answer(self, frame: int, columns: np.ndarray, rows: list[np.ndarray | None], offset: float) -> LoopResult:
+        """Match one query from its window of enhanced columns (R, ds + 1)."""
+        self._n_searches += 1
+        starts = self._start_rows(rows, len(columns))
+        scores = sequence_scores(columns.astype(np.float64) - offset, self._offsets, starts)
+        found = best_match(scores, self.config.ds, self.config.rwindow)
+        if found is None:
+            return self._no_answer(frame, "no trajectory stays inside the reference")
+        confidence = float(np.clip(1.0 - found.ratio, 0.0, 1.0))
+        ranked = np.argsort(scores, kind="stable")[: self.config.candidates]
+        ranked = ranked[np.isfinite(scores[ranked])]
+        reference_frames = np.asarray(self._reference_frames, dtype=np.int64)
+        return LoopResult(
+            frame=frame,
+            match=int(reference_frames[found.reference]),
+            confidence=confidence,
+            accepted=confidence >= self.config.threshold,
+            candidates=reference_frames[ranked + self.config.ds // 2],
+        )
+
+    def _start_rows(self, rows: list[np.ndarray | None], n_ref: int) -> np.ndarray | None:
+        """Start rows whose trajectories pass through a kept entry (None: every row).
+
+        ``window`` anchors: a kept entry of any query of the window; ``middle``: of the
+        query being answered only (Fast-SeqSLAM's anchoring on the current image).
+        """
+        if any(r is None for r in rows):
+            return None
+        columns = [len(rows) // 2] if getattr(self.config, "anchor", "window") == "middle" else range(len(rows))
+        wanted = np.zeros(n_ref, dtype=bool)
+        for k in columns:
+            starts = (rows[k][:, None] - self._offsets[:, k][None, :]).ravel()  # type: ignore[index]
+            wanted[starts[(starts >= 0) & (starts < n_ref)]] = True
+        return np.flatnonzero(wanted)
+
+    def statistics(self) -> dict[str, int]:
+        return {
+            "n_searches": self._n_searches,
+            "n_places_reference": len(self._reference_frames),
+            "n_places_query": len(self._query_frames),
+        }
+
+
+class SeqSlam(_SequenceDetector):
+    """SeqSLAM as OpenSeqSLAM (Suenderhauf et al. 2013): sequences of thumbnails, full difference matrix.
+
+    The difference matrix (mean absolute difference of the ``seqslam_thumbnail``
+    vectors), local contrast enhancement along the reference axis, straight-line sequence
+    search over ``ds`` + 1 queries at velocities ``vmin`` .. ``vmax``, and a uniqueness
+    ratio (best / second best outside ``rwindow``). The first and last ``ds``/2 queries get
+    an explicit no-answer, as in OpenSeqSLAM. Confidence = 1 - ratio.
+    """
+
+    name = "seqslam"
+
+    class Config(SeqSlamConfig):
+        pass
+
+    def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        assert self._references is not None
+        differences = difference_columns(self._references.view, queries)
+        return enhance_contrast(differences, self.config.contrast_window), [None] * len(queries)
+
+
+class SeqSlamFast(_SequenceDetector):
+    """Fast-SeqSLAM idea (Siam & Zhang 2017): only each query's k nearest references count.
+
+    The difference matrix keeps, per query, its ``k`` nearest references (exact, by the
+    same mean absolute difference, which still compares every reference; or approximate,
+    by a FAISS HNSW index on L2, which does not); the other entries take the column's
+    largest kept value. Contrast enhancement runs as in ``seqslam``; the sequence search
+    scores only the trajectories through a kept entry (of any query of the window, or,
+    with ``anchor: middle``, of the answered query only).
+    """
+
+    name = "seqslam_fast"
+
+    class Config(SeqSlamConfig):
+        k: int = Field(20, ge=1, description="nearest references kept per query")
+        knn: Literal["exact", "hnsw"] = Field(
+            "exact", description="exact L1 neighbours, or approximate ones from a FAISS HNSW index (L2)"
+        )
+        anchor: Literal["window", "middle"] = Field(
+            "window",
+            description="score trajectories through a neighbour of any query of the window, or of the "
+            "answered query only (Fast-SeqSLAM's anchoring; fastest, misses more)",
+        )
+        hnsw_ef: int = Field(64, ge=8, description="HNSW search breadth (knn: hnsw)")
+
+    config: Config
+
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        self._index = None
+        self._indexed = 0
+
+    def _neighbours(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(q, k) indices of each query's nearest references and their mean absolute differences."""
+        assert self._references is not None
+        references = self._references.view
+        k = min(self.config.k, len(references))
+        if self.config.knn == "exact":
+            distances = difference_columns(references, queries).T  # (q, R)
+            nearest = np.argpartition(distances, k - 1, axis=1)[:, :k]
+            return nearest, np.take_along_axis(distances, nearest, axis=1)
+        try:
+            import faiss  # optional: only the approximate mode needs it
+        except ImportError:
+            raise PluginError("knn: hnsw needs FAISS: pip install 'slamfront[ann]' (faiss-cpu)") from None
+
+        if self._index is None:
+            self._index = faiss.IndexHNSWFlat(references.shape[1], 32)
+            self._index.hnsw.efConstruction = 80
+        if self._indexed < len(references):
+            self._index.add(np.ascontiguousarray(references[self._indexed :], dtype=np.float32))
+            self._indexed = len(references)
+        self._index.hnsw.efSearch = max(self.config.hnsw_ef, k)
+        _, nearest = self._index.search(np.ascontiguousarray(queries, dtype=np.float32), k)
+        nearest = np.where(nearest >= 0, nearest, nearest.max(axis=1, keepdims=True))
+        # the same mean absolute difference as the exact mode, on the k neighbours only
+        gathered = references[nearest].astype(np.float32)
+        distances = np.abs(gathered - queries[:, None, :].astype(np.float32)).sum(axis=2, dtype=np.float32)
+        return nearest, distances / np.float32(references.shape[1])
+
+    def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        assert self._references is not None
+        nearest, distances = self._neighbours(queries)
+        n_ref = len(self._references)
+        differences = np.repeat(distances.max(axis=1)[None, :], n_ref, axis=0).astype(np.float32)
+        differences[nearest.T, np.arange(len(queries))[None, :]] = distances.T
+        rows: list[np.ndarray | None] = [np.unique(row) for row in nearest]
+        return enhance_contrast(differences, self.config.contrast_window), rows

@@ -1,0 +1,210 @@
+"""The bow_bayes detector on feature streams (no rendering): revisits, memory bound, bad input."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from slamfront.core.loops import LoopGroundTruth, precision_recall
+from slamfront.core.memory import working_memory_bound
+from slamfront.errors import PluginError
+from slamfront.frame import Frame
+from slamfront.messages import BowStatistics, Features, LoopResult
+from slamfront.plugin import StageInputs
+from slamfront_plugins.descriptors.downsampled import DownsampledImage
+from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
+from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+
+IMAGE = np.zeros((4, 4), np.uint8)
+DIM = 16
+
+
+class FeatureWorld:
+    """Places along a closed route, each with its own landmarks; a frame sees most of its
+    place's landmarks and some of the next place's, with descriptor noise."""
+
+    def __init__(self, n_places: int, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.n_places = n_places
+        self.landmarks = self.rng.normal(size=(n_places, 40, DIM)).astype(np.float32)
+
+    def observe(self, place: int) -> np.ndarray:
+        own = self.landmarks[place % self.n_places][self.rng.choice(40, 30, replace=False)]
+        ahead = self.landmarks[(place + 1) % self.n_places][self.rng.choice(40, 10, replace=False)]
+        seen = np.concatenate([own, ahead])
+        return (seen + self.rng.normal(scale=0.05, size=seen.shape)).astype(np.float32)
+
+    def stream(self, laps: int) -> Iterator[tuple[int, np.ndarray]]:
+        for index in range(laps * self.n_places):
+            yield index, self.observe(index % self.n_places)
+
+
+def _config(**params: object) -> BowBayes.Config:
+    base: dict[str, object] = {"nd_low": 0.5, "nd_high": 2.0, "stm_size": 5, "time_budget_s": 0.0}
+    base.update(params)
+    return BowBayes.Config(**base)
+
+
+def _process(detector: BowBayes, index: int, descriptors: np.ndarray, traversal: str = "stream") -> list:
+    frame = Frame(index=index, timestamp=float(index), image=IMAGE, traversal=traversal)  # type: ignore[arg-type]
+    features = Features(frame=index, descriptors=descriptors, metric="hamming" if descriptors.dtype == np.uint8 else "l2")
+    return list(detector.process(StageInputs(frame=frame, outputs={"descriptor": [features]})))
+
+
+def _split(outputs: list) -> tuple[LoopResult | None, BowStatistics]:
+    results = [m for m in outputs if isinstance(m, LoopResult)]
+    stats = [m for m in outputs if isinstance(m, BowStatistics)]
+    assert len(stats) == 1 and len(results) <= 1
+    return (results[0] if results else None), stats[0]
+
+
+@pytest.mark.parametrize("rule", ["greedy", "nndr"])
+def test_revisits_of_a_stream_are_found_at_full_precision(rule: str) -> None:
+    world = FeatureWorld(80)
+    detector = BowBayes(_config(vocabulary_update=rule, compare_rules=True))
+    results = [_split(_process(detector, index, d))[0] for index, d in world.stream(laps=2)]
+    truth = LoopGroundTruth.band(np.arange(160), np.r_[np.full(80, -1), np.arange(80)], 2, valid=(0, 79))
+    match = np.array([r.match for r in results])
+    confidence = np.array([r.confidence for r in results])
+    correct = truth.is_correct(np.arange(160), match)
+    curve = precision_recall(confidence, match >= 0, correct, 80)
+    assert curve.recall_at_100p >= 0.9
+    accepted = np.array([r.accepted for r in results])
+    assert accepted[80:].sum() >= 60 and not accepted[:80].any()  # lap 1 never closes a loop
+    assert np.all(correct[accepted])
+
+
+def test_greedy_quantises_closer_than_nndr_on_the_same_frames() -> None:
+    world = FeatureWorld(40, seed=4)
+    detector = BowBayes(_config(vocabulary_update="greedy", compare_rules=True))
+    stats = [_split(_process(detector, index, d))[1] for index, d in world.stream(laps=2)]
+    greedy = np.nanmean([s.quantisation_error for s in stats])
+    nndr = np.nanmean([s.other_quantisation_error for s in stats])
+    assert stats[-1].other_rule == "nndr" and greedy < nndr
+
+
+class ModelledClock:
+    """Seconds as the cost model says: ``base + per_place * |WM|`` from a frame's start."""
+
+    def __init__(self, detector: BowBayes, base: float, per_place: float) -> None:
+        self.detector, self.base, self.per_place = detector, base, per_place
+        self.now, self.calls = 0.0, 0
+
+    def new_frame(self) -> None:
+        self.now += 10.0
+        self.calls = 0
+
+    def __call__(self) -> float:
+        self.calls += 1
+        if self.calls == 1:
+            return self.now
+        return self.now + self.base + self.per_place * self.detector._memory.n_wm
+
+
+def test_working_memory_never_exceeds_its_bound_on_a_long_stream() -> None:
+    """1,200 frames, three laps; every frame's time is base + per_place * |WM|."""
+    budget, base, per_place = 0.5, 0.1, 0.005
+    detector = BowBayes(_config(time_budget_s=budget, stm_size=10, max_retrieved=2))
+    clock = ModelledClock(detector, base, per_place)
+    detector.clock = clock
+    within = int((budget - base) / per_place + 1e-9)  # N*: the largest WM searched within budget
+    bound = working_memory_bound(budget, base, per_place, 2)
+    sizes, transferred, retrieved = [], 0, 0
+    for index, descriptors in FeatureWorld(400, seed=1).stream(laps=3):
+        clock.new_frame()
+        _, stats = _split(_process(detector, index, descriptors))
+        sizes.append(stats.wm_size)
+        transferred += stats.transferred
+        retrieved += stats.retrieved
+        # words of LTM places leave the search: the vocabulary scanned stays bounded too
+        assert stats.active_words <= (within + 10 + 3) * 40
+    assert max(sizes) <= within <= bound
+    assert max(sizes) == within  # the budget binds: WM grows to it and stays there
+    assert transferred > 900 and retrieved > 0
+    assert detector.statistics()["n_places_transferred"] == transferred
+
+
+def test_blank_frames_give_no_answer_not_a_crash() -> None:
+    detector = BowBayes(_config(min_features=3))
+    world = FeatureWorld(10)
+    outputs = _process(detector, 0, np.zeros((0, DIM), np.float32))
+    result, stats = _split(outputs)
+    assert result is not None and result.match == -1 and result.reason == "no features" and not result.accepted
+    assert stats.n_features == 0 and np.isnan(stats.quantisation_error)
+    result, _ = _split(_process(detector, 1, world.observe(0)[:2]))
+    assert result is not None and result.match == -1 and "only 2 features" in result.reason
+    for index in range(2, 30):
+        result, _ = _split(_process(detector, index, world.observe(index % 10)))
+    assert result is not None and result.match >= 0  # the stream carries on
+    result, _ = _split(_process(detector, 30, np.zeros((0, DIM), np.float32)))
+    assert result is not None and result.match == -1
+
+
+def test_descriptors_the_vocabulary_was_not_built_for_are_refused() -> None:
+    detector = BowBayes(_config())
+    world = FeatureWorld(5)
+    _process(detector, 0, world.observe(0))
+    with pytest.raises(PluginError, match=r"frame 1: descriptors 40x32 float32 do not fit .* 16-long float32"):
+        _process(detector, 1, np.zeros((40, 32), np.float32))
+    with pytest.raises(PluginError, match="frame 2: descriptors 40x16 uint8"):
+        _process(detector, 2, np.zeros((40, 16), np.uint8))
+    typed = BowBayes(_config(descriptor_type="sift"))
+    with pytest.raises(PluginError, match=r"built for sift \(128-long float32\) but got 32-long uint8"):
+        _process(typed, 0, np.zeros((40, 32), np.uint8))
+
+
+def test_recipe_level_checks() -> None:
+    orb = LocalFeaturesDescriptor(LocalFeaturesDescriptor.Config(descriptor="orb"))
+    detector = BowBayes(BowBayes.Config(descriptor_type="sift"))
+    with pytest.raises(PluginError, match="built for sift descriptors .* gives orb"):
+        detector.check({"descriptor": orb})
+    with pytest.raises(PluginError, match="needs local features"):
+        BowBayes(BowBayes.Config()).check({"descriptor": DownsampledImage(DownsampledImage.Config())})
+    defaults = BowBayes(BowBayes.Config())
+    defaults.check({"descriptor": orb})
+    assert defaults.thresholds().nd_low == 34.0 and defaults.thresholds().nd_high == 55.0
+    with pytest.raises(PluginError, match="no default T_ND1/T_ND2"):
+        BowBayes(BowBayes.Config()).thresholds()
+    with pytest.raises(ValidationError, match="SURF is patented"):
+        BowBayes.Config(descriptor_type="surf")  # type: ignore[arg-type]
+    with pytest.raises(ValidationError, match="must not exceed"):
+        BowBayes.Config(nd_low=3, nd_high=2)
+
+
+def test_paired_traversals_search_queries_against_the_reference() -> None:
+    world = FeatureWorld(30, seed=2)
+    detector = BowBayes(_config(stm_size=5))
+    for index in range(30):
+        result, stats = _split(_process(detector, index, world.observe(index), "reference"))
+        assert result is None and stats.place >= 0
+    answers = []
+    for k in range(30):
+        result, stats = _split(_process(detector, 30 + k, world.observe(k), "query"))
+        assert stats.place == -1 and stats.new_words == 0  # queries add no place and keep no word
+        answers.append(result)
+    assert stats.wm_size == len(detector._places) >= 20  # STM flushed: every reference place is searched
+    assert stats.vocabulary_size == detector._vocabularies.main.n_active  # type: ignore[union-attr]
+    matches = np.array([a.match for a in answers])
+    assert np.mean(np.abs(matches - np.arange(30)) <= 3) >= 0.9  # zeta = 3, as the paired harness scores
+    assert sum(a.accepted for a in answers) >= 15
+
+
+def test_paired_harness_through_the_runtime(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Reference day, query dusk: answers for queries only, scored against the paired ground truth."""
+    from slamfront.recipe import build_pipeline, parse_recipe
+    from slamfront.runtime import run_pipeline
+    from tests.helpers import small_synthetic_recipe
+
+    raw = small_synthetic_recipe(mode="paired", frames_per_traversal=30, image_width=160, image_height=120)
+    raw["descriptor"] = {"plugin": "local_features", "params": {"descriptor": "sift", "max_features": 200}}
+    raw["loop_detector"] = {"plugin": "bow_bayes", "params": {"compare_rules": True}}
+    recipe = parse_recipe(raw, "paired")
+    result = run_pipeline(build_pipeline(recipe, "paired"), "paired", tmp_path, progress=False)
+    metrics = result.metrics
+    assert metrics["n_queries"] == 30 and metrics["n_not_reported"] == 0
+    assert metrics["n_places_query"] == 30 and 0 < metrics["n_places_reference"] <= 30
+    assert metrics["bow_wm_size_final"] == metrics["n_places_reference"]  # every reference place searched
+    assert metrics["recall_at_5"] >= 0.5

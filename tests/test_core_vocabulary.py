@@ -1,0 +1,172 @@
+"""The online vocabulary: the seed's fig. 1/2 situations, the rules' edge cases, word life cycle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamfront.core.distances import nearest_two, pairwise
+from slamfront.core.errors import CoreError
+from slamfront.core.vocabulary import OnlineVocabulary, VocabularyThresholds, becomes_word, ratio
+
+# Seed fig. 2(a): two words w1, w2 of V_{t-1}; features P1..P3 in a tight cluster well
+# away from w1, P4 far from both. Units are the picture's; T_ND2 sits between the
+# cluster's distances to w1 (4.2-4.8) and P4's (9.4).
+W1, W2 = (0.0, 0.0), (10.0, 0.0)
+P1, P2, P3, P4 = (3.0, 3.0), (3.3, 3.4), (3.6, 3.1), (5.0, 8.0)
+FIG2 = VocabularyThresholds(nndr=0.8, nd_low=0.1, nd_high=4.6)
+
+
+def _fig2_vocabulary() -> OnlineVocabulary:
+    vocabulary = OnlineVocabulary("l2", 2)
+    vocabulary.update(np.array([W1, W2], np.float32), "nndr", FIG2)
+    vocabulary.retain([0, 1])
+    return vocabulary
+
+
+def test_fig2_nndr_quantises_the_cluster_to_w1_and_greedy_gives_it_a_word() -> None:
+    features = np.array([P1, P2, P3, P4], np.float32)
+    nndr = _fig2_vocabulary().update(features, "nndr", FIG2)
+    greedy = _fig2_vocabulary().update(features, "greedy", FIG2)
+    # fig. 2(b): P1, P2, P3 -> w1; P4 -> new word w_{n+1}
+    assert nndr.words.tolist() == [0, 0, 0, 2]
+    assert nndr.new_words.tolist() == [2]
+    # fig. 2(c): P4 first (largest ND), then P3 -> new words; P1, P2 -> P3's word w_{n+2}
+    assert greedy.order.tolist() == [3, 2, 1, 0]
+    assert greedy.new_words.tolist() == [2, 3]
+    assert greedy.words.tolist() == [3, 3, 3, 2]
+    # seed eq. 15: the cluster's error under greedy is far below NNDR's
+    d = np.linalg.norm
+    assert greedy.distances[:2].mean() == pytest.approx((d(np.subtract(P1, P3)) + d(np.subtract(P2, P3))) / 2, rel=1e-5)
+    assert nndr.distances[:3].mean() == pytest.approx(np.mean([d(P1), d(P2), d(P3)]), rel=1e-5)
+    assert greedy.distances[:2].mean() < nndr.distances[:3].mean()
+    assert greedy.mean_error < nndr.mean_error / 5
+
+
+def test_nndr_depends_on_feature_order_greedy_does_not() -> None:
+    """Seed fig. 1: the ratio rule's words change with the processing order."""
+    rng = np.random.default_rng(3)
+    words = rng.normal(size=(20, 8)).astype(np.float32)
+    features = (words[rng.integers(0, 20, 60)] + rng.normal(scale=0.6, size=(60, 8))).astype(np.float32)
+    thresholds = VocabularyThresholds(nndr=0.8, nd_low=0.2, nd_high=2.5)
+    reverse = features[::-1].copy()
+
+    def run(rule: str, order: np.ndarray) -> set[tuple[float, ...]]:
+        vocabulary = OnlineVocabulary("l2", 8)
+        vocabulary.update(words, "nndr", thresholds)
+        made = vocabulary.update(order, rule, thresholds)  # type: ignore[arg-type]
+        return {tuple(np.round(vocabulary.descriptor(int(w)), 5)) for w in made.new_words}
+
+    assert run("nndr", features) != run("nndr", reverse)
+    assert run("greedy", features) == run("greedy", reverse)
+
+
+def test_greedy_without_nd_limits_is_nndr_in_decreasing_nd_order() -> None:
+    rng = np.random.default_rng(0)
+    words = rng.normal(size=(30, 4)).astype(np.float32)
+    features = rng.normal(size=(40, 4)).astype(np.float32)
+    open_limits = VocabularyThresholds(nndr=0.8, nd_low=0.0, nd_high=np.inf)
+    greedy = OnlineVocabulary("l2", 4)
+    greedy.update(words, "nndr", open_limits)
+    by_nd = greedy.update(features, "greedy", open_limits)
+    ratio_rule = OnlineVocabulary("l2", 4)
+    ratio_rule.update(words, "nndr", open_limits)
+    sorted_features = features[by_nd.order]
+    reordered = ratio_rule.update(sorted_features, "nndr", open_limits)
+    np.testing.assert_array_equal(reordered.words, by_nd.words[by_nd.order])
+
+
+def test_decision_rule_table() -> None:
+    """Seed table 2 (greedy) and algorithm 2 (nndr), with missing neighbours as in algorithm 1."""
+    t = VocabularyThresholds(nndr=0.8, nd_low=1.0, nd_high=5.0)
+    assert becomes_word("greedy", 6.0, 100.0, t)  # ND > T_ND2: new even though NND >> ND
+    assert not becomes_word("greedy", 0.5, 0.55, t)  # ND < T_ND1: nearest even though ND ~ NND
+    assert becomes_word("greedy", 3.0, 3.3, t) and not becomes_word("greedy", 3.0, 10.0, t)
+    assert not becomes_word("nndr", 6.0, 100.0, t) and becomes_word("nndr", 0.5, 0.55, t)
+    assert ratio(np.inf, np.inf) == 1.0 and ratio(2.0, np.inf) == 1.0 and ratio(0.0, 0.0) == 0.0
+    for rule in ("greedy", "nndr"):
+        assert becomes_word(rule, np.inf, np.inf, t)  # empty vocabulary: every feature is a word
+        assert becomes_word(rule, 2.0, np.inf, t)  # one word: no ratio test possible -> a word
+    assert not becomes_word("greedy", 0.5, np.inf, t)  # ... unless ND < T_ND1
+
+
+def test_first_image_words_and_duplicates() -> None:
+    t = VocabularyThresholds(nndr=0.8, nd_low=0.5, nd_high=10.0)
+    vocabulary = OnlineVocabulary("l2", 2)
+    # the second feature duplicates the first: ND = 0 < T_ND1 -> no second word
+    made = vocabulary.update(np.array([[0, 0], [0, 0], [5, 5]], np.float32), "greedy", t)
+    assert len(vocabulary) == 2 and made.words.tolist() == [0, 0, 1]
+    assert made.distances.tolist() == [0.0, 0.0, 0.0]
+    empty = vocabulary.update(np.zeros((0, 2), np.float32), "greedy", t)
+    assert len(empty.words) == 0 and np.isnan(empty.mean_error)
+
+
+def test_binary_descriptors_use_hamming_bits() -> None:
+    t = VocabularyThresholds(nndr=0.8, nd_low=2, nd_high=40)
+    vocabulary = OnlineVocabulary("hamming", 32)
+    rng = np.random.default_rng(1)
+    base = rng.integers(0, 256, (5, 32), dtype=np.uint8)
+    vocabulary.update(base, "greedy", t)
+    assert len(vocabulary) == 5
+    flipped = base.copy()
+    flipped[:, 0] ^= 0b1  # one bit off each word: ND = 1 < T_ND1
+    again = vocabulary.update(flipped, "greedy", t)
+    assert again.words.tolist() == [0, 1, 2, 3, 4] and again.distances.tolist() == [1.0] * 5
+    with pytest.raises(CoreError, match="do not fit"):
+        vocabulary.update(rng.random((3, 32)).astype(np.float32), "greedy", t)
+    with pytest.raises(CoreError, match="do not fit"):
+        vocabulary.update(rng.integers(0, 256, (3, 64), dtype=np.uint8), "greedy", t)
+
+
+def test_words_leave_and_rejoin_the_search_with_their_places() -> None:
+    t = VocabularyThresholds(nndr=0.8, nd_low=0.0, nd_high=np.inf)
+    vocabulary = OnlineVocabulary("l2", 2)
+    first = vocabulary.update(np.array([[0, 0], [10, 0]], np.float32), "nndr", t)
+    vocabulary.retain(first.words)
+    second = vocabulary.update(np.array([[5, 30]], np.float32), "nndr", t)  # ND = NND: a word
+    vocabulary.retain(second.words)
+    vocabulary.retain([0])  # a second place uses word 0
+    assert vocabulary.n_active == 3
+    vocabulary.release(first.words)  # the first place goes to long-term memory
+    assert vocabulary.is_active(np.array([0, 1, 2])).tolist() == [True, False, True]
+    nd, _, word = vocabulary.nearest(np.array([[9.5, 0.0]], np.float32))
+    assert word[0] != 1  # word 1 is not searched any more
+    vocabulary.retain(first.words)  # retrieved
+    _, _, word = vocabulary.nearest(np.array([[9.5, 0.0]], np.float32))
+    assert word[0] == 1 and vocabulary.n_active == 3
+    with pytest.raises(CoreError, match="more often"):
+        vocabulary.release([2, 2])
+
+
+def test_truncate_forgets_an_unkept_images_words() -> None:
+    t = VocabularyThresholds(nndr=0.8, nd_low=0.0, nd_high=np.inf)
+    vocabulary = OnlineVocabulary("l2", 2)
+    vocabulary.retain(vocabulary.update(np.array([[0, 0], [10, 0]], np.float32), "nndr", t).words)
+    before = len(vocabulary)
+    vocabulary.update(np.array([[50, 50], [-50, 50]], np.float32), "nndr", t)
+    assert len(vocabulary) == 4 and vocabulary.n_active == 4
+    vocabulary.truncate(before)
+    assert len(vocabulary) == 2 and vocabulary.n_active == 2
+    with pytest.raises(CoreError, match="still uses"):
+        vocabulary.truncate(0)
+
+
+@pytest.mark.parametrize("metric", ["l2", "hamming"])
+def test_nearest_two_matches_brute_force(metric: str) -> None:
+    rng = np.random.default_rng(7)
+    if metric == "l2":
+        rows = rng.normal(size=(500, 16)).astype(np.float32) * 100
+        queries = rng.normal(size=(300, 16)).astype(np.float32) * 100
+    else:
+        rows = rng.integers(0, 256, (500, 32), dtype=np.uint8)
+        queries = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    d1, d2, i1 = nearest_two(queries, rows, metric, chunk=64)  # type: ignore[arg-type]
+    full = np.sort(pairwise(queries, rows, metric), axis=1)  # type: ignore[arg-type]
+    np.testing.assert_allclose(d1, full[:, 0], rtol=1e-4)
+    np.testing.assert_allclose(d2, full[:, 1], rtol=1e-4)
+    exact = pairwise(queries, rows, metric)[np.arange(300), i1]  # type: ignore[arg-type]
+    np.testing.assert_allclose(exact, full[:, 0], rtol=1e-4)
+    one_d1, one_d2, one_i = nearest_two(queries[:3], rows[:1], metric)  # type: ignore[arg-type]
+    assert np.all(np.isinf(one_d2)) and one_i.tolist() == [0, 0, 0]
+    none = nearest_two(queries[:3], rows[:0], metric)  # type: ignore[arg-type]
+    assert np.all(np.isinf(none[0])) and none[2].tolist() == [-1, -1, -1]
