@@ -18,9 +18,11 @@ from slamfront.formats.poses import write_tum
 from slamfront.imageio import read_depth, read_image
 from slamfront.local_features import LocalFeatureExtractor
 from slamfront.matching import Matcher, resolve_max_distance
+from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import LoopConstraint, LoopResult, PoseGraphState, RelativePose, Trajectory
 from slamfront.recipe import build_pipeline, load_recipe
+from slamfront.replay import replay_log
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
 from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, verify
@@ -191,7 +193,8 @@ def test_synthetic_slam_run_reduces_ate_and_logs_for_foxglove(cli, tmp_path: Pat
     recipe, path = load_recipe("synthetic_slam", [
         "source.params.frames_per_traversal=40", "source.params.route_length_m=100",
         "source.params.image_width=240", "source.params.image_height=180",
-        "loop_detector.params.exclude_recent=20", "log.images=false",
+        "loop_detector.params.exclude_recent=20", "log.image_format=png", "log.image_max_width=240",
+        "log.depth=true", "log.depth_encoding=32FC1",
     ])
     result = run_pipeline(build_pipeline(recipe, str(path)), str(path), out, progress=False)
     metrics = result.metrics
@@ -212,3 +215,9 @@ def test_synthetic_slam_run_reduces_ate_and_logs_for_foxglove(cli, tmp_path: Pat
     again = json.loads((tmp_path / "again" / "metrics.json").read_text())
     assert again["ate_rmse_after_m"] == pytest.approx(metrics["ate_rmse_after_m"], rel=0.05)
     assert again["ground_truth"] == "from the log"
+    # the back end reads pixels (PnP on depth): with exact pixels logged, a replay re-runs it bit for bit
+    replay = replay_log(result.log_path, tmp_path / "replay", from_kind="backend", progress=False)
+    assert summarize(replay.log_path).metadata["replay"]["recorded_stages"] == "descriptor,loop_detector"
+    difference = diff_logs(result.log_path, replay.log_path)
+    assert difference.identical, [d.describe() for d in difference.differences]
+    assert replay.metrics["ate_rmse_after_m"] == metrics["ate_rmse_after_m"]

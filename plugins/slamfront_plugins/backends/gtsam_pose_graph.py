@@ -57,6 +57,7 @@ class GtsamPoseGraph(Backend):
     """
 
     name = "gtsam_pose_graph"
+    reads_pixels = True  # its own PnP verification extracts features and lifts them with depth
 
     class Config(PluginConfig):
         odometry: Literal["ground_truth", "file", "stages"] = Field(
