@@ -3,7 +3,8 @@
 Batch: one Levenberg-Marquardt run from the file's initial poses (or composed odometry).
 iSAM2: the graph fed one vertex at a time with the edges it closes, each vertex
 predicted from its parent's current estimate (as online), GTSAM's default
-relinearisation (threshold 0.1, every 10 updates), then up to 3 extra updates. The
+relinearisation (threshold 0.1, every 10 updates), then up to 3 extra updates; Cholesky,
+redone with QR where Cholesky finds the system indeterminate (the time includes both). The
 iSAM2 total is the cost of having an up-to-date estimate after *every* vertex; the batch
 column is one solve at the end. Also shown: GTSAM's own ``readG2o`` + LM on the same file
 (the baseline for slamfront's reader and factor building), and ATE where ground truth
@@ -84,7 +85,7 @@ def measure(name: str, root: Path) -> list[object]:
     try:
         graph = read_graph(root / graph_file).parsed.graph
     except SlamfrontError as exc:  # e.g. cubicle.g2o: non-positive-definite information matrices
-        return [name, "-", "-", "-", f"rejected: {str(exc).split('/')[-1][:90]}", *["-"] * 9]
+        return [name, "-", "-", "-", f"rejected: {str(exc).split('/')[-1][:90]}", *["-"] * 10]
     read_seconds = time.perf_counter() - start
     d = graph.dim
     batch = optimize(graph, SolverOptions())
@@ -101,14 +102,14 @@ def measure(name: str, root: Path) -> list[object]:
         incremental = optimize(graph, SolverOptions(mode="isam2"))
     except SlamfrontError as exc:  # a graph GTSAM cannot solve is a result too
         ate = "-" if truth is None else f"{ate_rmse(batch.initial[:, :d, d], truth):.3g} / {ate_rmse(batch.poses[:, :d, d], truth):.3g} / -"
-        return row + [f"failed: {str(exc).split(': ', 1)[-1][:60]}", "-", "-", "-", ate]
+        return row + [f"failed: {str(exc).split(': ', 1)[-1][:60]}", "-", "-", "-", "-", ate]
     difference = float(np.abs(incremental.poses[:, :d, d] - batch.poses[:, :d, d]).max())
     ate = "-"
     if truth is not None:
         ate = (f"{ate_rmse(batch.initial[:, :d, d], truth):.3g} / {ate_rmse(batch.poses[:, :d, d], truth):.3g} / "
                f"{ate_rmse(incremental.poses[:, :d, d], truth):.3g}")
     return row + [
-        incremental.seconds, incremental.seconds / batch.seconds, incremental.cost_after / batch.cost_after,
+        incremental.seconds, incremental.factorization, incremental.seconds / batch.seconds, incremental.cost_after / batch.cost_after,
         difference, ate,
     ]
 
@@ -120,7 +121,7 @@ def main() -> None:
     headers = [
         "graph", "dim", "vertices", "edges", "read s", "batch LM s", "LM iterations", "GTSAM readG2o+LM s",
         "(read + batch) / GTSAM",
-        "iSAM2 s", "iSAM2 / batch time", "iSAM2 / batch cost", "max position diff m", "ATE m: initial / batch / iSAM2",
+        "iSAM2 s", "iSAM2 solver", "iSAM2 / batch time", "iSAM2 / batch cost", "max position diff m", "ATE m: initial / batch / iSAM2",
     ]
     body = "\n\n".join([
         f"Machine: {platform.machine()}, Python {platform.python_version()}, GTSAM {gtsam.__version__ if hasattr(gtsam, '__version__') else '4.3'}.",

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from slamfront.core.alignment import ate_rmse
+from slamfront.errors import DataError
 from slamfront.core.posegraph import random_false_closures, subgraph
 from slamfront.posegraph.io import read_graph, read_ground_truth
 from slamfront.posegraph.solver import SolverOptions, optimize
@@ -113,3 +114,15 @@ def test_a_graph_lm_cannot_improve_is_reported_as_not_converged(posegraphs: Path
     graph = read_graph(posegraphs / "slambook/INTEL.g2o").parsed.graph
     result = optimize(graph)
     assert not result.converged and result.cost_after == pytest.approx(result.cost_before)
+
+
+def test_isam2_falls_back_to_qr_where_cholesky_breaks_down(posegraphs: Path) -> None:
+    # se-sync's CSAIL.g2o: iSAM2's Cholesky finds the system indeterminate part-way; QR solves it
+    graph = read_graph(posegraphs / "se-sync/CSAIL.g2o").parsed.graph
+    with pytest.raises(DataError, match="CSAIL.g2o: GTSAM could not solve the graph: Indeterminate linear system"):
+        optimize(graph, SolverOptions(mode="isam2", isam2_factorization="cholesky"))
+    incremental = optimize(graph, SolverOptions(mode="isam2"))
+    batch = optimize(graph)
+    assert incremental.factorization == "qr" and incremental.summary()["isam2_factorization"] == "qr"
+    assert np.abs(incremental.poses[:, :2, 2] - batch.poses[:, :2, 2]).max() < 0.01
+    assert incremental.cost_after == pytest.approx(batch.cost_after, rel=1e-2)

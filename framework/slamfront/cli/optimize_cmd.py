@@ -34,6 +34,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--robust-odometry", action="store_true", help="apply the kernel to odometry edges too")
     parser.add_argument("--mode", choices=("batch", "isam2"), default="batch",
                         help="batch Levenberg-Marquardt, or iSAM2 adding one vertex at a time")
+    parser.add_argument("--isam2-factorization", choices=("auto", "cholesky", "qr"), default="auto",
+                        help="iSAM2's linear solver (auto: Cholesky, redone with QR if the system is indeterminate)")
     parser.add_argument("--gnc-loss", choices=("tls", "gm"), default="tls", help="GNC surrogate loss")
     parser.add_argument("--gnc-warm-start", choices=("none", "dcs"), default="dcs",
                         help="start GNC from the initial poses or from a DCS solution")
@@ -50,7 +52,7 @@ def options_from(args: argparse.Namespace) -> SolverOptions:
         return SolverOptions(
             mode=args.mode, kernel=args.kernel, kernel_parameter=args.kernel_parameter,
             robust_odometry=args.robust_odometry, gnc_loss=args.gnc_loss, gnc_warm_start=args.gnc_warm_start,
-            max_iterations=args.max_iterations,
+            max_iterations=args.max_iterations, isam2_factorization=args.isam2_factorization,
         )
     except ValidationError as exc:
         problem = exc.errors()[0]

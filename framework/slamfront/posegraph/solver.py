@@ -93,6 +93,11 @@ class SolverOptions(BaseModel):
     isam2_relinearize_threshold: float = Field(0.1, gt=0, description="iSAM2 relinearises variables moving more")
     isam2_relinearize_skip: int = Field(10, ge=1, description="iSAM2 checks relinearisation every this many updates")
     isam2_final_updates: int = Field(3, ge=0, description="extra iSAM2 updates after the last vertex")
+    isam2_factorization: Literal["auto", "cholesky", "qr"] = Field(
+        "auto",
+        description="iSAM2's linear solver: Cholesky (fast), QR (slower, copes with ill-conditioned information), "
+        "or auto: Cholesky, redone with QR when GTSAM finds the system indeterminate (a run's online session: QR)",
+    )
 
     @model_validator(mode="after")
     def _gnc_is_batch(self) -> SolverOptions:
@@ -121,6 +126,7 @@ class OptimizationResult:
         updates.
     :ivar seconds: wall time of building the GTSAM problem and solving it (not of reading it).
     :ivar weights: (M,) GNC's final weight per edge (1 inlier, 0 outlier), else None.
+    :ivar factorization: iSAM2's linear solver (``cholesky`` or ``qr``), else "".
     """
 
     poses: np.ndarray
@@ -133,6 +139,7 @@ class OptimizationResult:
     mode: str
     kernel: str
     weights: np.ndarray | None = None
+    factorization: str = ""
 
     def summary(self) -> dict[str, Any]:
         """The scalar results, for metrics.json."""
@@ -145,6 +152,8 @@ class OptimizationResult:
             "mode": self.mode,
             "kernel": self.kernel,
         }
+        if self.factorization:
+            summary["isam2_factorization"] = self.factorization
         if self.weights is not None:
             summary["n_rejected_edges"] = int(np.sum(self.weights < 0.5))
         return summary
@@ -403,10 +412,14 @@ def _weighted_graph(plain: gtsam.NonlinearFactorGraph, weights: np.ndarray) -> g
 class Isam2Session:
     """An iSAM2 smoother fed vertex by vertex (the back end's online mode and ``--mode isam2``)."""
 
-    def __init__(self, dim: int, options: SolverOptions) -> None:
+    def __init__(self, dim: int, options: SolverOptions, factorization: Literal["cholesky", "qr"] | None = None) -> None:
         self.dim = dim
         self.options = options
         params = gtsam.ISAM2Params()
+        # an online session cannot be redone from scratch, so "auto" takes the robust solver
+        chosen = factorization or ("qr" if options.isam2_factorization == "auto" else options.isam2_factorization)
+        params.setFactorization(chosen.upper())
+        self.factorization = chosen
         params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
         params.relinearizeSkip = options.isam2_relinearize_skip
         self.isam = gtsam.ISAM2(params)
@@ -441,6 +454,23 @@ class Isam2Session:
 
 
 def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
+    if options.isam2_factorization != "auto":
+        return _isam2_run(graph, options, options.isam2_factorization)
+    started = time.perf_counter()
+    try:
+        return _isam2_run(graph, options, "cholesky")
+    except DataError as exc:
+        # Cholesky breaks down on ill-conditioned information (e.g. se-sync's intel, CSAIL, MIT);
+        # QR is slower but solves them
+        if "Indeterminate" not in str(exc):
+            raise
+    failed_seconds = time.perf_counter() - started
+    result = _isam2_run(graph, options, "qr")
+    result.seconds += failed_seconds  # the time an "auto" user waits includes the failed attempt
+    return result
+
+
+def _isam2_run(graph: PoseGraph, options: SolverOptions, factorization: Literal["cholesky", "qr"]) -> OptimizationResult:
     initial, anchors = prepare(graph)
     started = time.perf_counter()
     robust = robust_mask(graph, options)
@@ -452,7 +482,7 @@ def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationRes
     by_step: list[list[int]] = [[] for _ in range(graph.n_vertices)]
     for edge, when in enumerate(np.maximum(step[src], step[dst]).tolist()):
         by_step[when].append(edge)
-    session = Isam2Session(graph.dim, options)
+    session = Isam2Session(graph.dim, options, factorization)
     session.name = graph.name
     inverse_measurements = geometry.invert(graph.measurements)
     progress = tqdm(order.tolist(), desc="iSAM2", unit="vertex", leave=False, disable=None)  # shown on a terminal
@@ -490,4 +520,5 @@ def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationRes
         converged=converged,
         mode="isam2",
         kernel=options.kernel,
+        factorization=factorization,
     )
