@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from slamfront.core.alignment import ate_rmse
-from slamfront.errors import DataError
 from slamfront.core.posegraph import random_false_closures, subgraph
+from slamfront.errors import DataError
 from slamfront.posegraph.io import read_graph, read_ground_truth
 from slamfront.posegraph.solver import SolverOptions, optimize
 
