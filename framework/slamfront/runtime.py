@@ -334,7 +334,7 @@ def execute_run(
 
     metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
     sections.append(_log_section(metrics))
-    metrics_path = _write_json_atomically(out_dir / "metrics.json", metrics)
+    metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
     return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
 
@@ -371,7 +371,7 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 
 
-def _write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
+def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
     """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")

@@ -18,6 +18,8 @@ from slamfront.cli import (
     diff_cmd,
     eval_cmd,
     inspect_cmd,
+    optimize_cmd,
+    outliers_cmd,
     plugins_cmd,
     recipes_cmd,
     recover_cmd,
@@ -41,6 +43,8 @@ COMMANDS = (
     recover_cmd,
     recipes_cmd,
     datasets_cmd,
+    optimize_cmd,
+    outliers_cmd,
 )
 
 

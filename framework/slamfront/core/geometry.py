@@ -1,6 +1,13 @@
 """Rigid transforms as 4x4 matrices, quaternions in (x, y, z, w) order (as TUM files store them).
 
 A pose ``T_wc`` maps camera coordinates to world coordinates: ``p_w = R p_c + t``.
+
+Planar poses (SE(2)) are 3x3 matrices; :func:`invert`, :func:`relative` and the
+batch helpers accept either size and any leading axes. Planar parameters are
+``(x, y, theta)`` (theta in radians, counter-clockwise); Euler angles are
+``(roll, pitch, yaw)`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (as iSAM files store them);
+tangent vectors are ordered translation first, ``(x, y, z, rx, ry, rz)``, as g2o
+information matrices are.
 """
 
 from __future__ import annotations
@@ -44,21 +51,95 @@ def quaternion_of(pose: np.ndarray) -> np.ndarray:
     return q if q[3] >= 0 else -q
 
 
+def dimension_of(transforms: np.ndarray) -> int:
+    """2 for (..., 3, 3) arrays, 3 for (..., 4, 4) ones."""
+    shape = np.shape(transforms)
+    if len(shape) < 2 or shape[-1] != shape[-2] or shape[-1] not in (3, 4):
+        raise CoreError(f"expected (..., 3, 3) or (..., 4, 4) transforms, got shape {shape}")
+    return shape[-1] - 1
+
+
 def invert(pose: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid (4, 4) transform (uses R^T rather than a general inverse)."""
-    rotation, translation = pose[:3, :3], pose[:3, 3]
-    out = np.eye(4)
-    out[:3, :3] = rotation.T
-    out[:3, 3] = -rotation.T @ translation
+    """Inverse of rigid transforms, (..., 4, 4) or (..., 3, 3) (R^T, -R^T t: no general inverse)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    d = dimension_of(pose)
+    rotation_t = np.swapaxes(pose[..., :d, :d], -1, -2)
+    out = np.zeros_like(pose)
+    out[..., :d, :d] = rotation_t
+    out[..., :d, d] = -np.einsum("...ij,...j->...i", rotation_t, pose[..., :d, d])
+    out[..., d, d] = 1.0
     return out
 
 
 def relative(pose_a: np.ndarray, pose_b: np.ndarray) -> np.ndarray:
-    """The transform taking frame b into frame a: ``inv(T_wa) @ T_wb``."""
-    return invert(pose_a) @ pose_b
+    """The transform taking frame b into frame a: ``inv(T_wa) @ T_wb`` (batches broadcast)."""
+    return invert(pose_a) @ np.asarray(pose_b, dtype=np.float64)
 
 
 def rotation_angle_deg(pose: np.ndarray) -> float:
     """Angle of the rotation part in degrees (0 for identity)."""
     cosine = (np.trace(np.asarray(pose)[:3, :3]) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+
+
+def quaternions_of(poses: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions x, y, z, w (w >= 0) of (N, 4, 4) transforms' rotations."""
+    q = Rotation.from_matrix(np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]).as_quat()
+    return q * np.where(q[:, 3:] < 0, -1.0, 1.0)
+
+
+def se3(translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) transforms from (..., 3) translations and (..., 3, 3) rotation matrices."""
+    translation = np.asarray(translation, dtype=np.float64)
+    out = np.zeros((*translation.shape[:-1], 4, 4))
+    out[..., :3, :3] = rotation
+    out[..., :3, 3] = translation
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def se3_from_euler(translation: np.ndarray, roll_pitch_yaw: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) transforms with ``R = Rz(yaw) Ry(pitch) Rx(roll)`` (iSAM's convention)."""
+    roll_pitch_yaw = np.atleast_2d(np.asarray(roll_pitch_yaw, dtype=np.float64))
+    rotation = Rotation.from_euler("ZYX", roll_pitch_yaw[:, ::-1]).as_matrix()
+    return se3(np.atleast_2d(translation), rotation)
+
+
+def exp_se3(tangent: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) transforms ``[Exp(r) t; 0 1]`` from (..., 6) ``(x, y, z, rx, ry, rz)``.
+
+    Translation and rotation are perturbed independently (how odometry noise is drawn
+    here), not through the SE(3) exponential's V matrix.
+    """
+    tangent = np.asarray(tangent, dtype=np.float64)
+    rotation = Rotation.from_rotvec(tangent.reshape(-1, 6)[:, 3:]).as_matrix().reshape(*tangent.shape[:-1], 3, 3)
+    return se3(tangent[..., :3], rotation)
+
+
+def se2(x: np.ndarray | float, y: np.ndarray | float, theta: np.ndarray | float) -> np.ndarray:
+    """(..., 3, 3) planar transforms from ``(x, y, theta)``."""
+    x, y, theta = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (x, y, theta)))
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.zeros((*x.shape, 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c, -s, x
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = s, c, y
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def se2_parameters(transforms: np.ndarray) -> np.ndarray:
+    """(..., 3) ``(x, y, theta)`` of (..., 3, 3) planar transforms, theta in (-pi, pi]."""
+    transforms = np.asarray(transforms, dtype=np.float64)
+    theta = np.arctan2(transforms[..., 1, 0], transforms[..., 0, 0])
+    return np.stack([transforms[..., 0, 2], transforms[..., 1, 2], theta], axis=-1)
+
+
+def planar_to_spatial(transforms: np.ndarray) -> np.ndarray:
+    """Embed (..., 3, 3) planar transforms in SE(3): z = 0, rotation about z."""
+    transforms = np.asarray(transforms, dtype=np.float64)
+    out = np.zeros((*transforms.shape[:-2], 4, 4))
+    out[..., :2, :2] = transforms[..., :2, :2]
+    out[..., :2, 3] = transforms[..., :2, 2]
+    out[..., 2, 2] = 1.0
+    out[..., 3, 3] = 1.0
+    return out

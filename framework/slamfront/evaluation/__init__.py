@@ -6,6 +6,7 @@ Each evaluation watches the run's messages and, at the end, produces metrics for
 
 from __future__ import annotations
 
+from slamfront.evaluation.backend import BackendEvaluation
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.evaluation.bow import BowEvaluation
 from slamfront.evaluation.frames import FrameOverview
@@ -28,6 +29,8 @@ def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
         chosen.append(RegistrationEvaluation())
     if "localizer" in kinds:
         chosen.append(LocalizationEvaluation())
+    if "backend" in kinds:
+        chosen.append(BackendEvaluation())
     return chosen
 
 

@@ -1,0 +1,87 @@
+"""Back-end evaluation: ATE and RPE (Sturm et al. 2012, :mod:`slamfront.core.trajectory`)
+of the trajectory before and after pose-graph optimisation, loop closures the back end
+added (and how many of them were true), and a plot."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamfront.core.trajectory import evaluate_poses
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
+from slamfront.posegraph import report
+
+_SOLVER_KEYS = (
+    "backend_mode", "backend_kernel", "n_vertices", "n_edges", "n_graph_loop_closures", "cost_before", "cost_after",
+    "iterations", "converged", "optimisation_seconds", "n_rejected_edges",
+)
+"""Back-end statistics (already in metrics.json) repeated in the report section."""
+
+
+class BackendEvaluation(Evaluation):
+    """Scores the back end's ``odometry`` and ``optimised`` trajectories against the
+    source's ground-truth poses (ATE after a rigid alignment)."""
+
+    title = "Pose-graph back end"
+    labels = ("odometry", "optimised")
+
+    def __init__(self) -> None:
+        self._truth: dict[int, np.ndarray] = {}
+        self._trajectories: dict[str, Trajectory] = {}
+        self._graph: PoseGraphState | None = None
+        self._constraints: list[LoopConstraint] = []
+
+    def observe(self, kind: str, message: Message) -> None:
+        if isinstance(message, FrameInfo) and message.pose is not None:
+            self._truth[message.frame] = np.asarray(message.pose, dtype=np.float64)
+        elif isinstance(message, Trajectory) and message.label in self.labels:
+            self._trajectories[message.label] = message
+        elif isinstance(message, PoseGraphState):
+            self._graph = message
+        elif isinstance(message, LoopConstraint):
+            self._constraints.append(message)
+
+    def finish(self, context: EvaluationContext) -> EvaluationReport | None:
+        if not self._trajectories:
+            return EvaluationReport(self.title, markdown="The back end produced no trajectory.\n")
+        added = [c for c in self._constraints if c.added]
+        metrics: dict[str, float | int | None] = {
+            "n_loop_constraints_added": len(added),
+            "n_loop_constraints_skipped": len(self._constraints) - len(added),
+        }
+        truth = context.source.loop_ground_truth()
+        if truth is not None and added:
+            frames = np.array([c.frame for c in added], dtype=np.int64)
+            known = np.isin(frames, truth.queries)
+            correct = truth.is_correct(frames[known], np.array([c.match for c in added], dtype=np.int64)[known])
+            metrics["n_loop_constraints_added_false"] = int(len(correct) - correct.sum())
+        estimate = self._trajectories.get("optimised") or next(iter(self._trajectories.values()))
+        frames = estimate.frames
+        has_truth = len(frames) >= 3 and all(int(f) in self._truth for f in frames)
+        truth_poses = np.array([self._truth[int(f)] for f in frames]) if has_truth else None
+        ground_truth = None if truth_poses is None else truth_poses[:, :3, 3]
+        positions = {label: t.poses[:, :3, 3] for label, t in self._trajectories.items()}
+        if truth_poses is not None and np.ptp(ground_truth, axis=0).max() > 0:
+            for label, suffix in (("odometry", "before"), ("optimised", "after")):
+                if label in self._trajectories:
+                    scores = evaluate_poses(truth_poses, self._trajectories[label].poses).metrics()
+                    metrics[f"ate_rmse_{suffix}_m"] = scores["ate_rmse_m"]
+                    metrics[f"rpe_rmse_{suffix}_m"] = scores["rpe_rmse_m"]
+                    metrics[f"rpe_rotation_rmse_{suffix}_deg"] = scores["rpe_rotation_rmse_deg"]
+        figures = []
+        if context.options.plots:
+            loops = None
+            if self._graph is not None:
+                mask = np.abs(self._graph.targets - self._graph.sources) != 1
+                loops = np.searchsorted(frames, np.stack([self._graph.sources[mask], self._graph.targets[mask]], 1))
+            keys = {"odometry": "ate_rmse_before_m", "optimised": "ate_rmse_after_m"}
+            titled = {
+                label + (f" (ATE {metrics[keys[label]]:.3g} m)" if keys[label] in metrics else ""): points
+                for label, points in positions.items()
+            }
+            path = report.before_after(titled, context.out_dir / "backend.png", ground_truth, loops,
+                                       title="trajectory before and after pose-graph optimisation")
+            figures.append(path.name)
+        shown = {k: context.statistics[k] for k in _SOLVER_KEYS if k in context.statistics}
+        markdown = report.metrics_table({**shown, **metrics}) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)

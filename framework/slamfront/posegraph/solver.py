@@ -1,0 +1,524 @@
+"""Optimising pose graphs with GTSAM: batch Levenberg-Marquardt, GNC, and iSAM2.
+
+One :class:`SolverOptions` drives everything the ``gtsam_pose_graph`` back end and
+``slamfront optimize`` do. Robust kernels are GTSAM m-estimators wrapped around each
+edge's Gaussian noise model (``noiseModel.Robust``), applied to loop closures (and to
+odometry only when asked: odometry is what a front end trusts most). GNC is GTSAM's
+``GncLMOptimizer`` (Yang et al., RA-L 2020) with the odometry chain and the prior marked
+as known inliers.
+
+Keys are the graph's vertex ids. A prior on the first vertex (and on ``FIX`` vertices)
+removes the gauge freedom; it does not move the optimum of anything else.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import gtsam
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from tqdm import tqdm
+
+from slamfront.core import geometry
+from slamfront.core.errors import CoreError
+from slamfront.core.posegraph import PoseGraph, check_connected, initial_poses, spanning_tree
+from slamfront.errors import DataError
+
+KernelName = Literal["none", "huber", "cauchy", "dcs", "geman_mcclure", "tukey", "welsch", "gnc"]
+
+_ROTATION_FIRST = np.array([3, 4, 5, 0, 1, 2])
+"""GTSAM's Pose3 tangent is (rx, ry, rz, x, y, z); graphs store translation first."""
+
+_PRIOR_SIGMA = 1e-4
+"""Gauge prior on the first vertex: tight, but loose enough to keep the system well conditioned."""
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """A robust kernel GTSAM offers: what it does, its usual parameter, how to build it."""
+
+    summary: str
+    default_parameter: float
+    build: Callable[[float], Any]
+
+
+KERNELS: Mapping[str, Kernel] = {
+    "huber": Kernel("quadratic up to k, then linear", 1.345, lambda k: gtsam.noiseModel.mEstimator.Huber.Create(k)),
+    "cauchy": Kernel("log(1 + (r/c)^2)", 1.0, lambda c: gtsam.noiseModel.mEstimator.Cauchy.Create(c)),
+    "dcs": Kernel(
+        "dynamic covariance scaling (Agarwal et al., ICRA 2013), phi", 1.0,
+        lambda phi: gtsam.noiseModel.mEstimator.DCS.Create(phi),
+    ),
+    "geman_mcclure": Kernel(
+        "Geman-McClure, c", 1.0, lambda c: gtsam.noiseModel.mEstimator.GemanMcClure.Create(c)
+    ),
+    "tukey": Kernel("Tukey biweight (zero weight beyond c)", 4.685, lambda c: gtsam.noiseModel.mEstimator.Tukey.Create(c)),
+    "welsch": Kernel("Welsch (exponential)", 2.9846, lambda c: gtsam.noiseModel.mEstimator.Welsch.Create(c)),
+}
+"""M-estimator kernels by name; ``none`` (least squares) and ``gnc`` are handled apart."""
+
+
+class SolverOptions(BaseModel):
+    """How to optimise a pose graph."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    mode: Literal["batch", "isam2"] = Field(
+        "batch", description="batch Levenberg-Marquardt, or iSAM2 adding one vertex at a time"
+    )
+    kernel: KernelName = Field(
+        "none", description="robust kernel on loop closures: none, huber, cauchy, dcs, geman_mcclure, tukey, "
+        "welsch, or gnc (graduated non-convexity, batch only)",
+    )
+    kernel_parameter: float | None = Field(
+        None, gt=0, description="the kernel's threshold on the whitened residual (default: the kernel's usual value)"
+    )
+    robust_odometry: bool = Field(False, description="apply the kernel to odometry edges too")
+    gnc_loss: Literal["tls", "gm"] = Field("tls", description="GNC surrogate: truncated least squares or Geman-McClure")
+    gnc_warm_start: Literal["none", "dcs"] = Field(
+        "dcs", description="start GNC from the initial poses (none) or from a DCS solution (dcs)"
+    )
+    gnc_probability: float = Field(
+        0.99, gt=0, lt=1, description="GNC inlier threshold: chi-square quantile of each edge's dimension"
+    )
+    gnc_step: float = Field(2.0, gt=1, description="GNC's factor on its control parameter per outer iteration")
+    gnc_inner_iterations: int = Field(20, ge=1, description="LM iterations per GNC outer iteration")
+    max_iterations: int = Field(100, ge=1, description="LM iteration limit")
+    relative_tolerance: float = Field(1e-5, gt=0, description="LM stops when the cost falls by less than this fraction")
+    absolute_tolerance: float = Field(1e-5, ge=0, description="... or by less than this")
+    isam2_relinearize_threshold: float = Field(0.1, gt=0, description="iSAM2 relinearises variables moving more")
+    isam2_relinearize_skip: int = Field(10, ge=1, description="iSAM2 checks relinearisation every this many updates")
+    isam2_final_updates: int = Field(3, ge=0, description="extra iSAM2 updates after the last vertex")
+    isam2_factorization: Literal["auto", "cholesky", "qr"] = Field(
+        "auto",
+        description="iSAM2's linear solver: Cholesky (fast), QR (slower, copes with ill-conditioned information), "
+        "or auto: Cholesky, redone with QR when GTSAM finds the system indeterminate (a run's online session: QR)",
+    )
+
+    @model_validator(mode="after")
+    def _gnc_is_batch(self) -> SolverOptions:
+        if self.kernel == "gnc" and self.mode != "batch":
+            raise ValueError("kernel gnc needs mode batch (GTSAM's GNC is a batch optimiser)")
+        return self
+
+    def parameter(self) -> float:
+        """The kernel parameter in use."""
+        if self.kernel_parameter is not None:
+            return self.kernel_parameter
+        return KERNELS[self.kernel].default_parameter if self.kernel in KERNELS else 0.0
+
+
+@dataclass
+class OptimizationResult:
+    """What an optimisation gave.
+
+    :ivar poses: (N, d+1, d+1) optimised poses in the order of the graph's ids.
+    :ivar initial: (N, d+1, d+1) the poses it started from.
+    :ivar cost_before: GTSAM's objective (half the sum of squared whitened residuals,
+        through the kernel) at the initial poses.
+    :ivar cost_after: the same objective at the solution (for GNC: with GNC's weights).
+    :ivar iterations: LM iterations (batch; for GNC those of the warm start and of a
+        final LM over GNC's weights, as GTSAM's GNC does not report its own), or iSAM2
+        updates.
+    :ivar seconds: wall time of building the GTSAM problem and solving it (not of reading it).
+    :ivar weights: (M,) GNC's final weight per edge (1 inlier, 0 outlier), else None.
+    :ivar factorization: iSAM2's linear solver (``cholesky`` or ``qr``), else "".
+    """
+
+    poses: np.ndarray
+    initial: np.ndarray
+    cost_before: float
+    cost_after: float
+    iterations: int
+    seconds: float
+    converged: bool
+    mode: str
+    kernel: str
+    weights: np.ndarray | None = None
+    factorization: str = ""
+
+    def summary(self) -> dict[str, Any]:
+        """The scalar results, for metrics.json."""
+        summary: dict[str, Any] = {
+            "cost_before": self.cost_before,
+            "cost_after": self.cost_after,
+            "iterations": self.iterations,
+            "seconds": self.seconds,
+            "converged": self.converged,
+            "mode": self.mode,
+            "kernel": self.kernel,
+        }
+        if self.factorization:
+            summary["isam2_factorization"] = self.factorization
+        if self.weights is not None:
+            summary["n_rejected_edges"] = int(np.sum(self.weights < 0.5))
+        return summary
+
+
+# --- conversions ----------------------------------------------------------------------
+
+
+def to_gtsam_poses(matrices: np.ndarray) -> list[gtsam.Pose2] | list[gtsam.Pose3]:
+    """(N, 3, 3) or (N, 4, 4) rigid transforms as GTSAM poses (rotations re-normalised)."""
+    matrices = np.asarray(matrices, dtype=np.float64)
+    if geometry.dimension_of(matrices) == 2:
+        return [gtsam.Pose2(x, y, theta) for x, y, theta in geometry.se2_parameters(matrices).tolist()]
+    translation, quaternion = matrices[:, :3, 3], geometry.quaternions_of(matrices)
+    return [
+        gtsam.Pose3(gtsam.Rot3.Quaternion(qw, qx, qy, qz), gtsam.Point3(x, y, z))
+        for (x, y, z), (qx, qy, qz, qw) in zip(translation.tolist(), quaternion.tolist())
+    ]
+
+
+def to_gtsam_pose(matrix: np.ndarray) -> gtsam.Pose2 | gtsam.Pose3:
+    """One (3, 3) or (4, 4) rigid transform as a GTSAM pose."""
+    return to_gtsam_poses(np.asarray(matrix)[None])[0]
+
+
+def poses_from_values(values: gtsam.Values, dim: int) -> np.ndarray:
+    """(N, d+1, d+1) poses of every key in ``values``, in key order."""
+    if dim == 2:
+        params = gtsam.utilities.extractPose2(values)
+        return geometry.se2(params[:, 0], params[:, 1], params[:, 2])
+    flat = gtsam.utilities.extractPose3(values)
+    return geometry.se3(flat[:, 9:12], flat[:, :9].reshape(-1, 3, 3))
+
+
+def to_values(ids: np.ndarray, poses: np.ndarray) -> gtsam.Values:
+    values = gtsam.Values()
+    for key, pose in zip(ids.tolist(), to_gtsam_poses(poses)):
+        values.insert(key, pose)
+    return values
+
+
+def gaussian(information: np.ndarray) -> gtsam.noiseModel.Base:
+    """A Gaussian noise model from an information matrix in translation-first order."""
+    if len(information) == 6:
+        information = information[np.ix_(_ROTATION_FIRST, _ROTATION_FIRST)]
+    return gtsam.noiseModel.Gaussian.Information(np.ascontiguousarray(information))
+
+
+def _between(dim: int) -> Callable[..., Any]:
+    return gtsam.BetweenFactorPose2 if dim == 2 else gtsam.BetweenFactorPose3
+
+
+def prior_factor(dim: int, key: int, pose: np.ndarray) -> Any:
+    """The gauge prior holding vertex ``key`` at ``pose``."""
+    sigmas = np.full(3 if dim == 2 else 6, _PRIOR_SIGMA)
+    factor = gtsam.PriorFactorPose2 if dim == 2 else gtsam.PriorFactorPose3
+    return factor(key, to_gtsam_pose(pose), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
+@dataclass(frozen=True)
+class FactorLayout:
+    """Which factor index is what, in a graph built by :func:`build_factor_graph`."""
+
+    n_edges: int
+    n_priors: int
+
+    @property
+    def prior_indices(self) -> list[int]:
+        return list(range(self.n_edges, self.n_edges + self.n_priors))
+
+
+def edge_factors(
+    dim: int,
+    sources: np.ndarray,
+    targets: np.ndarray,
+    measurements: np.ndarray,
+    information: np.ndarray,
+    robust: np.ndarray,
+    kernel: Any | None,
+) -> list[Any]:
+    """GTSAM between-factors for edges; ``robust`` (M,) bool picks those wrapped in ``kernel``."""
+    between = _between(dim)
+    factors = []
+    measured = to_gtsam_poses(measurements) if len(measurements) else []
+    for s, t, pose, info, wrap in zip(sources.tolist(), targets.tolist(), measured, information, robust):
+        noise = gaussian(info)
+        if wrap and kernel is not None:
+            noise = gtsam.noiseModel.Robust.Create(kernel, noise)
+        factors.append(between(s, t, pose, noise))
+    return factors
+
+
+def robust_mask(graph: PoseGraph, options: SolverOptions) -> np.ndarray:
+    """(M,) bool: the edges a kernel applies to."""
+    return np.ones(graph.n_edges, dtype=bool) if options.robust_odometry else ~graph.is_odometry()
+
+
+def build_factor_graph(
+    graph: PoseGraph, anchors: Mapping[int, np.ndarray], kernel: str, parameter: float, robust: np.ndarray
+) -> tuple[gtsam.NonlinearFactorGraph, FactorLayout]:
+    """Between-factors for every edge (in edge order), then priors on ``anchors``."""
+    estimator = KERNELS[kernel].build(parameter) if kernel in KERNELS else None
+    factor_graph = gtsam.NonlinearFactorGraph()
+    for factor in edge_factors(
+        graph.dim, graph.sources, graph.targets, graph.measurements, graph.information, robust, estimator
+    ):
+        factor_graph.add(factor)
+    for key, pose in anchors.items():
+        factor_graph.add(prior_factor(graph.dim, key, pose))
+    return factor_graph, FactorLayout(graph.n_edges, len(anchors))
+
+
+def objective(graph: PoseGraph, poses: np.ndarray, options: SolverOptions | None = None) -> float:
+    """Half the sum of squared whitened residuals of ``graph``'s edges at ``poses``,
+    through the kernel of ``options`` (none when None; GNC counts as none)."""
+    if options is None or options.kernel == "gnc":
+        factor_graph, _ = build_factor_graph(graph, {}, "none", 0.0, np.zeros(graph.n_edges, dtype=bool))
+    else:
+        factor_graph, _ = build_factor_graph(graph, {}, options.kernel, options.parameter(), robust_mask(graph, options))
+    return float(factor_graph.error(to_values(graph.ids, poses)))
+
+
+# --- optimisation ---------------------------------------------------------------------
+
+
+def prepare(graph: PoseGraph) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Check the graph can be optimised; return its initial poses and the anchored vertices.
+
+    :raises DataError: disconnected, negative ids (GTSAM keys are unsigned).
+    """
+    if graph.n_vertices and graph.ids[0] < 0:
+        raise DataError(f"{graph.name}: vertex ids must be non-negative, got {int(graph.ids[0])}")
+    try:
+        check_connected(graph)
+        poses = initial_poses(graph)
+    except CoreError as exc:
+        raise DataError(str(exc)) from None
+    anchors = {int(graph.ids[0]): poses[0]}
+    for vertex in graph.fixed.tolist():
+        anchors[int(vertex)] = poses[int(graph.index_of(np.array([vertex]))[0])]
+    return poses, anchors
+
+
+def _lm_params(options: SolverOptions, iterations: int | None = None) -> gtsam.LevenbergMarquardtParams:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iterations or options.max_iterations)
+    params.setRelativeErrorTol(options.relative_tolerance)
+    params.setAbsoluteErrorTol(options.absolute_tolerance)
+    return params
+
+
+def _solve(graph_name: str, work: Callable[[], Any]) -> Any:
+    """Run GTSAM; its exceptions about the problem become one clear DataError."""
+    try:
+        return work()
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(f"{graph_name}: GTSAM could not solve the graph: {first}") from None
+
+
+def optimize(graph: PoseGraph, options: SolverOptions | None = None) -> OptimizationResult:
+    """Optimise ``graph`` as ``options`` say (batch LM, GNC or iSAM2).
+
+    :raises DataError: the graph cannot be optimised (disconnected, degenerate).
+    """
+    options = options or SolverOptions()
+    if options.mode == "isam2":
+        return _optimize_isam2(graph, options)
+    if options.kernel == "gnc":
+        return _optimize_gnc(graph, options)
+    return _optimize_lm(graph, options)
+
+
+def _lm(
+    name: str, factor_graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: SolverOptions
+) -> tuple[gtsam.Values, int, bool]:
+    """One Levenberg-Marquardt run: the solution, its iteration count, and whether it
+    converged (stopped by the tolerances, not by the iteration limit nor by giving up
+    at the largest damping, GTSAM's "cannot decrease error with maximum lambda")."""
+    params = _lm_params(options)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(factor_graph, values, params)
+    solution = _solve(name, optimizer.optimize)
+    iterations = int(optimizer.iterations())
+    gave_up = optimizer.lambda_() >= params.getlambdaUpperBound()
+    return solution, iterations, iterations < options.max_iterations and not gave_up
+
+
+def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
+    initial, anchors = prepare(graph)
+    started = time.perf_counter()
+    factor_graph, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust_mask(graph, options))
+    values = to_values(graph.ids, initial)
+    solution, iterations, converged = _lm(graph.name, factor_graph, values, options)
+    return OptimizationResult(
+        poses=poses_from_values(solution, graph.dim),
+        initial=initial,
+        cost_before=float(factor_graph.error(values)),
+        cost_after=float(factor_graph.error(solution)),
+        iterations=iterations,
+        seconds=time.perf_counter() - started,
+        converged=converged,
+        mode="batch",
+        kernel=options.kernel,
+    )
+
+
+def _optimize_gnc(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
+    initial, anchors = prepare(graph)
+    started = time.perf_counter()
+    plain, layout = build_factor_graph(graph, anchors, "none", 0.0, np.zeros(graph.n_edges, dtype=bool))
+    values = to_values(graph.ids, initial)
+    start, iterations = values, 0
+    if options.gnc_warm_start == "dcs":
+        robust, _ = build_factor_graph(graph, anchors, "dcs", KERNELS["dcs"].default_parameter, ~graph.is_odometry())
+        start, iterations, _ = _lm(graph.name, robust, values, options)
+    params = gtsam.GncLMParams(_lm_params(options, options.gnc_inner_iterations))
+    params.setLossType(gtsam.GncLossType.TLS if options.gnc_loss == "tls" else gtsam.GncLossType.GM)
+    params.setLambdaStep(options.gnc_step)
+    known = [int(i) for i in np.flatnonzero(graph.is_odometry())] + layout.prior_indices
+    params.setKnownInliers(known)
+    gnc = gtsam.GncLMOptimizer(plain, start, params)
+    gnc.setInlierCostThresholdsAtProbability(options.gnc_probability)
+    solution = _solve(graph.name, gnc.optimize)
+    weights = np.asarray(gnc.getWeights(), dtype=np.float64)
+    # A last LM over the weighted graph: GNC's answer is its optimum already, so this
+    # only confirms convergence and gives an iteration count GNC itself does not report.
+    weighted = _weighted_graph(plain, weights)
+    solution, polish_iterations, converged = _lm(graph.name, weighted, solution, options)
+    return OptimizationResult(
+        poses=poses_from_values(solution, graph.dim),
+        initial=initial,
+        cost_before=float(plain.error(values)),
+        cost_after=float(weighted.error(solution)),
+        iterations=iterations + polish_iterations,
+        seconds=time.perf_counter() - started,
+        converged=converged,
+        mode="batch",
+        kernel="gnc",
+        weights=weights[: graph.n_edges],
+    )
+
+
+def _weighted_graph(plain: gtsam.NonlinearFactorGraph, weights: np.ndarray) -> gtsam.NonlinearFactorGraph:
+    """The graph GNC ends with: each factor's error scaled by its weight; zero weights dropped."""
+    weighted = gtsam.NonlinearFactorGraph()
+    for index in range(plain.size()):
+        factor = plain.at(index)
+        if weights[index] >= 1.0 - 1e-12:
+            weighted.add(factor)
+        elif weights[index] > 1e-12:
+            information = factor.noiseModel().information() * weights[index]
+            weighted.add(factor.cloneWithNewNoiseModel(gtsam.noiseModel.Gaussian.Information(information)))
+    return weighted
+
+
+class Isam2Session:
+    """An iSAM2 smoother fed vertex by vertex (the back end's online mode and ``--mode isam2``)."""
+
+    def __init__(self, dim: int, options: SolverOptions, factorization: Literal["cholesky", "qr"] | None = None) -> None:
+        self.dim = dim
+        self.options = options
+        params = gtsam.ISAM2Params()
+        # an online session cannot be redone from scratch, so "auto" takes the robust solver
+        chosen = factorization or ("qr" if options.isam2_factorization == "auto" else options.isam2_factorization)
+        params.setFactorization(chosen.upper())
+        self.factorization = chosen
+        params.setRelinearizeThreshold(options.isam2_relinearize_threshold)
+        params.relinearizeSkip = options.isam2_relinearize_skip
+        self.isam = gtsam.ISAM2(params)
+        self.kernel = KERNELS[options.kernel].build(options.parameter()) if options.kernel in KERNELS else None
+        self.updates = 0
+        self.name = "isam2"
+
+    def update(self, factors: list[Any], new_values: Mapping[int, np.ndarray]) -> None:
+        """Add factors and the initial guesses of the vertices they introduce, then update."""
+        graph = gtsam.NonlinearFactorGraph()
+        for factor in factors:
+            graph.add(factor)
+        values = gtsam.Values()
+        for key, pose in new_values.items():
+            values.insert(int(key), to_gtsam_pose(pose))
+        _solve(self.name, lambda: self.isam.update(graph, values))
+        self.updates += 1
+
+    def relinearize(self, times: int) -> None:
+        for _ in range(times):
+            _solve(self.name, self.isam.update)
+            self.updates += 1
+
+    def pose(self, key: int) -> np.ndarray:
+        """The current estimate of one vertex."""
+        getter = self.isam.calculateEstimatePose2 if self.dim == 2 else self.isam.calculateEstimatePose3
+        return np.asarray(getter(int(key)).matrix(), dtype=np.float64)
+
+    def estimate(self) -> np.ndarray:
+        """(N, d+1, d+1) current estimate of every vertex, in key order."""
+        return poses_from_values(self.isam.calculateEstimate(), self.dim)
+
+
+def _optimize_isam2(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
+    if options.isam2_factorization != "auto":
+        return _isam2_run(graph, options, options.isam2_factorization)
+    started = time.perf_counter()
+    try:
+        return _isam2_run(graph, options, "cholesky")
+    except DataError as exc:
+        # Cholesky breaks down on ill-conditioned information (e.g. se-sync's intel, CSAIL, MIT);
+        # QR is slower but solves them
+        if "Indeterminate" not in str(exc):
+            raise
+    failed_seconds = time.perf_counter() - started
+    result = _isam2_run(graph, options, "qr")
+    result.seconds += failed_seconds  # the time an "auto" user waits includes the failed attempt
+    return result
+
+
+def _isam2_run(graph: PoseGraph, options: SolverOptions, factorization: Literal["cholesky", "qr"]) -> OptimizationResult:
+    initial, anchors = prepare(graph)
+    started = time.perf_counter()
+    robust = robust_mask(graph, options)
+    full, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust)
+    order, parent_edge = spanning_tree(graph)
+    step = np.empty(graph.n_vertices, dtype=np.int64)
+    step[order] = np.arange(graph.n_vertices)
+    src, dst = graph.index_of(graph.sources), graph.index_of(graph.targets)
+    by_step: list[list[int]] = [[] for _ in range(graph.n_vertices)]
+    for edge, when in enumerate(np.maximum(step[src], step[dst]).tolist()):
+        by_step[when].append(edge)
+    session = Isam2Session(graph.dim, options, factorization)
+    session.name = graph.name
+    inverse_measurements = geometry.invert(graph.measurements)
+    progress = tqdm(order.tolist(), desc="iSAM2", unit="vertex", leave=False, disable=None)  # shown on a terminal
+    for when, vertex in enumerate(progress):
+        key = int(graph.ids[vertex])
+        if when == 0:
+            guess = initial[vertex]
+        else:
+            # predict from the parent's current estimate, as an online system would
+            edge = parent_edge[vertex]
+            parent = src[edge] if dst[edge] == vertex else dst[edge]
+            relative = graph.measurements[edge] if dst[edge] == vertex else inverse_measurements[edge]
+            guess = session.pose(int(graph.ids[parent])) @ relative
+        new_factors = [full.at(e) for e in by_step[when]]
+        if key in anchors:
+            new_factors.append(prior_factor(graph.dim, key, anchors[key]))
+        session.update(new_factors, {key: guess})
+    cost = float(full.error(session.isam.calculateEstimate()))
+    converged = options.isam2_final_updates == 0
+    for _ in range(options.isam2_final_updates):
+        session.relinearize(1)
+        previous, cost = cost, float(full.error(session.isam.calculateEstimate()))
+        converged = previous - cost <= max(options.relative_tolerance * previous, options.absolute_tolerance)
+        if converged:
+            break
+    poses = session.estimate()
+    seconds = time.perf_counter() - started
+    return OptimizationResult(
+        poses=poses,
+        initial=initial,
+        cost_before=float(full.error(to_values(graph.ids, initial))),
+        cost_after=cost,
+        iterations=session.updates,
+        seconds=seconds,
+        converged=converged,
+        mode="isam2",
+        kernel=options.kernel,
+        factorization=factorization,
+    )
