@@ -19,6 +19,7 @@ from slamfront.runtime import run_pipeline
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.feature_icp import FeatureIcp
 from slamfront_plugins.sources.rgbd import RgbdFolder
+from tests.helpers import stage_topic_bytes
 
 FAST = ["log.images=false"]
 """Images are not needed in these logs."""
@@ -236,3 +237,10 @@ def test_loop_detector_matches_become_verified_loop_edges(shared_data: Path) -> 
         plugin.process(StageInputs(frame=frame, outputs={"loop_detector": detector}))
     trajectory, _ = plugin.finish()
     assert trajectory.refined and trajectory.loop_edges.tolist() == [[0, 3]]
+
+
+def test_a_registration_run_is_bit_reproducible(redwood_run, tmp_path: Path) -> None:
+    """Same recipe, same data: the same registration messages, bit for bit (issue 9's
+    contract; Open3D runs single-threaded while aligning by default for this)."""
+    again = _run("redwood_register", tmp_path, plots=True)
+    assert stage_topic_bytes(again.log_path, "/registration/") == stage_topic_bytes(redwood_run.log_path, "/registration/")

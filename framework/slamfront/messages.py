@@ -339,6 +339,7 @@ class CloudRegistration(Message):
     """
 
     schema_name: ClassVar[str] = "slamfront.CloudRegistration"
+    volatile_fields: ClassVar[tuple[str, ...]] = ("seconds",)
     frame: int
     outcome: str
     pose: np.ndarray
@@ -372,6 +373,7 @@ class RegisteredTrajectory(Message):
     """The final camera poses of a registration, after any pose-graph refinement."""
 
     schema_name: ClassVar[str] = "slamfront.RegisteredTrajectory"
+    volatile_fields: ClassVar[tuple[str, ...]] = ("seconds",)
     frames: np.ndarray
     """(N,) int64 frame indices."""
     poses: np.ndarray

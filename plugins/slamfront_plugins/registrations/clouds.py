@@ -9,7 +9,8 @@ caller places clouds in the world.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TypeVar
 
@@ -179,3 +180,18 @@ def compute_features(
     feature.resize(histograms.shape[1], histograms.shape[0])
     feature.data = np.ascontiguousarray(histograms.T)
     return feature
+
+
+@contextmanager
+def open3d_threads(threads: int) -> Iterator[None]:
+    """Open3D limited to ``threads`` threads (0: its default) inside the block.
+
+    Open3D's limit is process-wide (oneTBB has no per-call setting), so the previous
+    limit is restored on the way out.
+    """
+    previous = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(threads)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(previous)

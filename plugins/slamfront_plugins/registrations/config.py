@@ -56,6 +56,11 @@ class FeatureIcpConfig(PluginConfig):
     fgr_distance_voxels: float = Field(1.5, gt=0, description="FGR correspondence distance, in voxels")
     fgr_iterations: int = Field(64, ge=1, description="FGR iterations")
     seed: int = Field(0, description="random seed of RANSAC (each pair is seeded from it and its frame index)")
+    threads: int = Field(
+        1, ge=0,
+        description="Open3D threads while aligning (0: all cores). 1 makes runs bit-reproducible: Open3D's "
+        "parallel RANSAC and ICP reductions otherwise differ in the last bits from run to run",
+    )
     # -- ICP ----------------------------------------------------------------------------------
     icp_method: Literal["point_to_point", "point_to_plane"] = Field(
         "point_to_plane",

@@ -17,7 +17,7 @@ import open3d as o3d
 
 from slamfront.core.distances import nearest_two
 from slamfront.core.geometry import rotation_angle_deg
-from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer
+from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, open3d_threads
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 
 reg = o3d.pipelines.registration
@@ -216,7 +216,8 @@ def align(
     attempts: list[Alignment] = []
     matches: dict[str, np.ndarray] = {}
     for start, scale, method in plans:
-        attempts.append(_attempt(source, target, config, timer, start, matches, seed, scale, method))
+        with open3d_threads(config.threads):
+            attempts.append(_attempt(source, target, config, timer, start, matches, seed, scale, method))
         if attempts[-1].passed and attempts[-1].fitness >= config.confident_fitness:
             return attempts[-1], attempts
     passing = [a for a in attempts if a.passed]

@@ -18,7 +18,7 @@ import numpy as np
 import open3d as o3d
 
 from slamfront.core.geometry import invert, relative
-from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer
+from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, open3d_threads
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.pairwise import align, quiet
 
@@ -112,14 +112,15 @@ def refine(
             )
         return graph
 
-    graph = timer.run("pose_graph", build)
+    with open3d_threads(config.threads):
+        graph = timer.run("pose_graph", build)
     option = reg.GlobalOptimizationOption(
         max_correspondence_distance=config.icp_distance_m,
         edge_prune_threshold=config.edge_prune_threshold,
         preference_loop_closure=config.loop_preference,
         reference_node=0,
     )
-    with quiet():
+    with quiet(), open3d_threads(config.threads):
         timer.run(
             "pose_graph",
             lambda: reg.global_optimization(
