@@ -50,6 +50,13 @@ REPLAYED_PIPELINES: dict[str, dict[str, Any]] = {
         "descriptor": {"plugin": "seqslam_thumbnail"},
         "loop_detector": {"plugin": "seqslam_fast", "params": {"ds": 6, "mode": "online", "score_offset": "bound"}},
     },
+    # loop poses only from earlier stages: the back end needs no pixels, so it is re-run from a JPEG log
+    "gtsam_pose_graph_stage_loops": {
+        "source_params": {"mode": "stream", "laps": 2, "frames_per_traversal": 30},
+        "descriptor": {"plugin": "downsampled", "params": {"width": 16, "height": 12, "patch_size": 4}},
+        "loop_detector": {"plugin": "nearest_neighbour", "params": {"exclude_recent": 10}},
+        "backend": {"plugin": "gtsam_pose_graph", "params": {"loop_pose": "stages"}},
+    },
     # no time budget: transfers to long-term memory would then depend on the machine's speed
     "bow_bayes_stream": {
         "source_params": {"mode": "stream", "laps": 2, "frames_per_traversal": 30, "image_width": 160, "image_height": 120},
@@ -83,7 +90,7 @@ def test_replay_with_the_embedded_recipe_reproduces_every_downstream_message(ori
     result = diff_logs(original.log_path, replay.log_path)
     assert result.identical, [d.describe() for d in result.differences]
     # the comparison covered every stage's topics, message for message
-    stages = [kind for kind in ("descriptor", "place_map", "loop_detector") if kind in original.metrics["timing"]]
+    stages = [kind for kind in ("descriptor", "place_map", "loop_detector", "backend") if kind in original.metrics["timing"]]
     for kind in stages:
         a, b = stage_topic_bytes(original.log_path, f"/{kind}/"), stage_topic_bytes(replay.log_path, f"/{kind}/")
         assert a and a == b

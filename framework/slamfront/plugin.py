@@ -164,6 +164,12 @@ class Stage(Plugin):
     (``slamfront replay``) re-runs such a stage only from a log that stores them exactly
     (``log.image_format: png`` at full width, depth as ``32FC1``)."""
 
+    @classmethod
+    def reads_pixels_with(cls, config: PluginConfig) -> bool:
+        """Whether a stage with this ``config`` reads pixels: :attr:`reads_pixels` unless a
+        plugin overrides it because some settings make the pixels unnecessary."""
+        return cls.reads_pixels
+
     def process(self, inputs: StageInputs) -> Sequence[Message]:
         """Process one frame; return this stage's outputs (possibly about earlier frames)."""
         raise NotImplementedError

@@ -25,7 +25,7 @@ import yaml
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-from pydantic import ConfigDict
+from pydantic import ConfigDict, ValidationError
 
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import data_root
@@ -156,7 +156,14 @@ def plan_replay(
 
     def reads_pixels(kind: str) -> bool:
         spec = getattr(wanted, kind)
-        return spec is not None and bool(getattr(registry.get(kind, spec.plugin).cls, "reads_pixels", False))
+        if spec is None:
+            return False
+        cls = registry.get(kind, spec.plugin).cls
+        try:
+            config = cls.Config.model_validate(spec.params, context={"data_root": data_root()})
+        except ValidationError:  # reported with its field when the pipeline is built
+            return bool(cls.reads_pixels)
+        return bool(cls.reads_pixels_with(config))
 
     if from_kind is None:
         from_kind = _earliest_replayable(log, kinds, [k for k in kinds if reads_pixels(k)], problem)

@@ -94,6 +94,11 @@ class GtsamPoseGraph(Backend):
                 raise ValueError("odometry: file needs odometry_file")
             return self
 
+    @classmethod
+    def reads_pixels_with(cls, config: PluginConfig) -> bool:
+        # loop poses taken only from earlier stages' RelativePose: no PnP, no pixels
+        return getattr(config, "loop_pose", "auto") != "stages"
+
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
         self.config: GtsamPoseGraph.Config
