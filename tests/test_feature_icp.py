@@ -12,9 +12,11 @@ import open3d as o3d
 import pytest
 
 from slamfront import DataError, Frame, StageInputs
+from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import CloudRegistration, LoopResult, PointCloud, RegisteredTrajectory
 from slamfront.recipe import build_pipeline, load_recipe
+from slamfront.replay import replay_log
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.feature_icp import FeatureIcp
@@ -244,3 +246,16 @@ def test_a_registration_run_is_bit_reproducible(redwood_run, tmp_path: Path) -> 
     contract; Open3D runs single-threaded while aligning by default for this)."""
     again = _run("redwood_register", tmp_path, plots=True)
     assert stage_topic_bytes(again.log_path, "/registration/") == stage_topic_bytes(redwood_run.log_path, "/registration/")
+
+
+def test_a_registration_run_replays_bit_for_bit_from_exact_depth(tmp_path: Path, shared_data: Path) -> None:
+    """Logged with exact pixels (PNG at full width, depth as 32FC1), the registration is
+    re-run by a replay and reproduces every message."""
+    exact = ["log.images=true", "log.image_format=png", "log.image_max_width=100000", "log.depth=true",
+             "log.depth_encoding=32FC1", "source.params.limit=3"]
+    run = _run("redwood_register", tmp_path / "run", *exact)
+    replay = replay_log(run.log_path, tmp_path / "replay", progress=False)
+    assert summarize(replay.log_path).metadata["replay"]["from"] == "registration"
+    result = diff_logs(run.log_path, replay.log_path)
+    assert result.identical, [d.describe() for d in result.differences]
+    assert stage_topic_bytes(replay.log_path, "/registration/")
