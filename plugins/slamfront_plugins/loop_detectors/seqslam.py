@@ -46,6 +46,11 @@ class SeqSlamConfig(PluginConfig):
     )
     candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
     chunk: int = Field(256, ge=1, description="queries per block in batch mode (memory: references x chunk)")
+    cache_mb: float = Field(
+        512, ge=0,
+        description="batch with global_min: keep the difference columns of the first pass (which finds the "
+        "minimum) for the second when they fit in this many MB, instead of computing them twice",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> SeqSlamConfig:
@@ -168,13 +173,22 @@ class _SequenceDetector(LoopDetector):
             reason = problem or f"{len(frames)} queries are fewer than a sequence of ds + 1 = {c.ds + 1}"
             return [self._no_answer(f, reason) for f in frames]
         queries = self._as_reference_type(np.stack(self._query_vectors))
+        # blocks of answered queries, each with the ds/2 queries either side its windows need
+        blocks = [(start, min(start + c.chunk, len(frames) - half)) for start in range(half, len(frames) - half, c.chunk)]
+        kept: dict[int, tuple[np.ndarray, list[np.ndarray | None]]] = {}
         offset = enhanced_lower_bound(c.contrast_window)
         if c.score_offset == "global_min":
-            offset = min(float(self._columns(queries[s : s + c.chunk])[0].min()) for s in range(0, len(queries), c.chunk))
+            # the blocks cover every query, and a query's column does not depend on its block
+            fits = len(self._references) * (len(frames) + len(blocks) * c.ds) * 4 <= c.cache_mb * 2**20
+            offset = np.inf
+            for k, (start, stop) in enumerate(blocks):
+                block = self._columns(queries[start - half : stop + half])
+                offset = min(offset, float(block[0].min()))
+                if fits:
+                    kept[k] = block
         results = [self._no_answer(f, f"among the first ds/2 = {half} queries") for f in frames[:half]]
-        for start in range(half, len(frames) - half, c.chunk):
-            stop = min(start + c.chunk, len(frames) - half)
-            columns, rows = self._columns(queries[start - half : stop + half])
+        for k, (start, stop) in enumerate(blocks):
+            columns, rows = kept.pop(k, None) or self._columns(queries[start - half : stop + half])
             for n in range(start, stop):
                 lo = n - start
                 results.append(self._answer(frames[n], columns[:, lo : lo + c.ds + 1], rows[lo : lo + c.ds + 1], offset))
