@@ -14,7 +14,7 @@ import pytest
 from slamfront import DataError, Frame, StageInputs
 from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import CloudRegistration, LoopResult, PointCloud, RegisteredTrajectory
+from slamfront.messages import CloudRegistration, LoopResult, PointCloud, RegisteredTrajectory, RelativePose
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.replay import replay_log
 from slamfront.runtime import run_pipeline
@@ -131,8 +131,16 @@ def test_unusable_frames_are_reported_not_fatal(shared_data: Path) -> None:
     frames[2] = _with_depth(frames[2], np.zeros_like(frames[2].depth))
     frames[3] = _with_depth(frames[3], few)
     plugin = FeatureIcp(FeatureIcpConfig(voxel_size_m=0.05))
-    steps = [plugin.process(StageInputs(frame=f))[0] for f in frames]
+    outputs = [plugin.process(StageInputs(frame=f)) for f in frames]
+    steps = [out[0] for out in outputs]
     assert [s.outcome for s in steps] == ["first", "aligned", "failed", "failed", "aligned"]
+    # a back end gets every frame's motion from the previous one: measured, or the prior with little weight
+    relatives = [[m for m in out if isinstance(m, RelativePose)] for out in outputs]
+    assert [[(r.frame_from, r.frame_to) for r in rs] for rs in relatives] == [[], [(0, 1)], [(1, 2)], [(2, 3)],
+                                                                            [(3, 4), (1, 4)]]
+    assert relatives[1][0].information is None and relatives[1][0].method.startswith("registration")
+    assert relatives[2][0].information is not None and relatives[2][0].information.max() <= 0.1
+    np.testing.assert_array_equal(relatives[4][1].transform, steps[4].transform)
     assert "depth is all zero" in steps[2].reason and "00002.jpg" in steps[2].reason
     assert "only 25 pixels with depth" in steps[3].reason
     assert steps[4].target == 1  # aligned to the last usable cloud
@@ -200,7 +208,8 @@ def test_motion_beyond_the_limit_is_rejected_and_kept_out_of_the_model(shared_da
     assert outcomes == ["first", "rejected", "rejected"]
     assert "translation 0.02" in steps[1][0].reason and "max_translation_m 0.005" in steps[1][0].reason
     assert steps[2][0].target == 0  # still aligned to the last accepted cloud
-    assert [len(s) for s in steps] == [2, 1, 1]  # a rejected frame logs no aligned cloud
+    clouds = [[m for m in s if isinstance(m, PointCloud)] for s in steps]
+    assert [len(c) for c in clouds] == [1, 0, 0]  # a rejected frame logs no aligned cloud
     np.testing.assert_array_equal(steps[1][0].pose, steps[0][0].pose)  # identity motion prior
     _, model = plugin.finish()
     first_only = FeatureIcp(FeatureIcpConfig(voxel_size_m=0.05))
@@ -259,3 +268,11 @@ def test_a_registration_run_replays_bit_for_bit_from_exact_depth(tmp_path: Path,
     result = diff_logs(run.log_path, replay.log_path)
     assert result.identical, [d.describe() for d in result.differences]
     assert stage_topic_bytes(replay.log_path, "/registration/")
+
+
+def test_registration_is_the_back_ends_odometry(tmp_path: Path, shared_data: Path) -> None:
+    """feature_icp's RelativePose messages feed gtsam_pose_graph (odometry: stages)."""
+    run = _run("redwood_register", tmp_path, "backend={plugin: gtsam_pose_graph, params: {odometry: stages}}")
+    relatives = [m.decoded for m in read_messages(run.log_path, ["/registration/relative_pose"])]
+    assert [(r.frame_from, r.frame_to) for r in relatives] == [(k, k + 1) for k in range(4)]
+    assert run.metrics["ate_rmse_after_m"] < 0.01  # the registered chain is millimetre-accurate here

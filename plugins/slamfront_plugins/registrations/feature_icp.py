@@ -8,13 +8,17 @@ import numpy as np
 
 from slamfront import Frame, Registration, StageInputs
 from slamfront.core.clouds import transform_points
-from slamfront.core.geometry import invert
-from slamfront.messages import CloudRegistration, LoopResult, Message, PointCloud, RegisteredTrajectory
+from slamfront.core.geometry import invert, relative
+from slamfront.messages import CloudRegistration, LoopResult, Message, PointCloud, RegisteredTrajectory, RelativePose
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, UnusableFrame, prepare_cloud
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.model import ModelBuilder
 from slamfront_plugins.registrations.pairwise import align
 from slamfront_plugins.registrations.pose_graph import Link, refine
+
+PRIOR_INFORMATION = (1e-2, 1e-2, 1e-2, 1e-1, 1e-1, 1e-1)
+"""Information (x, y, z, rx, ry, rz) of a frame placed by the motion prior alone: sigma
+10 m and about 180 degrees, so a back end keeps the graph connected without trusting it."""
 
 
 class FeatureIcp(Registration):
@@ -57,6 +61,31 @@ class FeatureIcp(Registration):
     # -- per frame -----------------------------------------------------------------------
 
     def process(self, inputs: StageInputs) -> Sequence[Message]:
+        previous = self._previous
+        messages = self._register(inputs)
+        registration = next(m for m in messages if isinstance(m, CloudRegistration))
+        return [*messages, *self._relative_poses(registration, previous)]
+
+    def _relative_poses(self, registration: CloudRegistration, previous: int | None) -> list[RelativePose]:
+        """The motion from the previous frame, for a back end (``odometry: stages``): the
+        alignment when this frame was aligned to it; otherwise the placement by the motion
+        prior, with little weight, and the alignment to an older frame if there was one."""
+        if previous is None:
+            return []
+        frame = registration.frame
+        method = f"registration {registration.method}"
+        aligned = registration.outcome in ("aligned", "fallback") and registration.transform is not None
+        if aligned and registration.target == previous:
+            return [RelativePose(previous, frame, registration.transform, method=method,
+                                 inliers=registration.n_correspondences)]
+        guessed = RelativePose(previous, frame, relative(self._poses[previous], self._poses[frame]),
+                               information=np.diag(PRIOR_INFORMATION), method="motion prior (not registered)")
+        if not aligned:
+            return [guessed]
+        return [guessed, RelativePose(registration.target, frame, registration.transform, method=method,
+                                      inliers=registration.n_correspondences)]
+
+    def _register(self, inputs: StageInputs) -> list[Message]:
         frame = inputs.frame
         self._last_frame = frame.index
         self._note_loop_suggestions(inputs)
