@@ -75,6 +75,8 @@ class _SequenceDetector(LoopDetector):
         self._offsets = trajectory_offsets(c.ds, c.vmin, c.vmax)
         self._references: GrowingRows | None = None
         self._reference_frames: list[int] = []
+        self._reference_index = np.empty(0, dtype=np.int64)
+        """``_reference_frames`` as an array, rebuilt only when references were added."""
         self._query_frames: list[int] = []
         self._query_vectors: list[np.ndarray] = []
         self._window: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=c.ds + 1)
@@ -156,7 +158,8 @@ class _SequenceDetector(LoopDetector):
             return []
         middle = self._pending.popleft()
         columns = np.stack([c for _, c, _ in self._window], axis=1)
-        return [self._answer(middle, columns, [r for _, _, r in self._window], enhanced_lower_bound(self.config.contrast_window))]
+        shifted = columns.astype(np.float64) - enhanced_lower_bound(self.config.contrast_window)
+        return [self._answer(middle, shifted, [r for _, _, r in self._window])]
 
     def finish(self) -> Sequence[LoopResult]:
         if self.config.mode == "online":
@@ -189,25 +192,29 @@ class _SequenceDetector(LoopDetector):
         results = [self._no_answer(f, f"among the first ds/2 = {half} queries") for f in frames[:half]]
         for k, (start, stop) in enumerate(blocks):
             columns, rows = kept.pop(k, None) or self._columns(queries[start - half : stop + half])
+            shifted = columns.astype(np.float64) - offset  # once per block, not once per window
             for n in range(start, stop):
                 lo = n - start
-                results.append(self._answer(frames[n], columns[:, lo : lo + c.ds + 1], rows[lo : lo + c.ds + 1], offset))
+                results.append(self._answer(frames[n], shifted[:, lo : lo + c.ds + 1], rows[lo : lo + c.ds + 1]))
         results += [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in frames[len(frames) - half :]]
         self._query_vectors.clear()
         return results
 
-    def _answer(self, frame: int, columns: np.ndarray, rows: list[np.ndarray | None], offset: float) -> LoopResult:
-        """Match one query from its window of enhanced columns (R, ds + 1)."""
+    def _answer(self, frame: int, shifted: np.ndarray, rows: list[np.ndarray | None]) -> LoopResult:
+        """Match one query from its window of enhanced columns (R, ds + 1), in float64 and
+        shifted by the score offset so that every score is >= 0."""
         self._n_searches += 1
-        starts = self._start_rows(rows, len(columns))
-        scores = sequence_scores(columns.astype(np.float64) - offset, self._offsets, starts)
+        starts = self._start_rows(rows, len(shifted))
+        scores = sequence_scores(shifted, self._offsets, starts)
         found = best_match(scores, self.config.ds, self.config.rwindow)
         if found is None:
             return self._no_answer(frame, "no trajectory stays inside the reference")
         confidence = float(np.clip(1.0 - found.ratio, 0.0, 1.0))
         ranked = np.argsort(scores, kind="stable")[: self.config.candidates]
         ranked = ranked[np.isfinite(scores[ranked])]
-        reference_frames = np.asarray(self._reference_frames, dtype=np.int64)
+        if len(self._reference_index) != len(self._reference_frames):
+            self._reference_index = np.asarray(self._reference_frames, dtype=np.int64)
+        reference_frames = self._reference_index
         return LoopResult(
             frame=frame,
             match=int(reference_frames[found.reference]),
