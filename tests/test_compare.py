@@ -52,3 +52,8 @@ def test_compare_refuses_two_recipes_with_one_name(cli, tmp_path: Path) -> None:
     first = _recipes(tmp_path)[0]
     code, _, stderr = cli("compare", first, first, "-o", tmp_path / "x", "-q")
     assert code == 2 and "two recipes are named 'cmp_seqslam'" in stderr
+
+
+def test_an_override_that_is_not_yaml_is_a_user_error(cli, tmp_path: Path) -> None:
+    code, _, stderr = cli("compare", "demo", "--set", "k=[oops", "-o", tmp_path / "x", "-q")
+    assert code == 2 and "--set 'k=[oops': value is not valid YAML" in stderr and "Traceback" not in stderr

@@ -25,7 +25,7 @@ from slamfront.campaign.backends import Backend
 from slamfront.campaign.campaign import CampaignResult
 from slamfront.errors import RecipeError
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
-from slamfront.recipe import find_recipe, read_recipe_dict
+from slamfront.recipe import find_recipe, parse_override, read_recipe_dict
 from slamfront.report import plots
 
 COMPARED_METRICS = (
@@ -60,12 +60,7 @@ def comparison_sweep(recipes: Sequence[str], overrides: Sequence[str], name: str
         if label in methods:
             raise RecipeError(f"{given}: two recipes are named {label!r}; give them different names")
         methods[label] = {"recipe": str(path.resolve()), "labels": {"method": label}}
-    override_map: dict[str, Any] = {}
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise RecipeError(f"--set {item!r}: expected KEY=VALUE")
-        override_map[key] = yaml.safe_load(value) if value.strip() else ""
+    override_map = dict(parse_override(item, "--set") for item in overrides)
     return {
         "name": name,
         "description": "Loop-closure methods compared through one harness: " + ", ".join(methods),

@@ -146,6 +146,18 @@ def read_recipe_dict(path: Path) -> dict[str, Any]:
     return read_yaml_mapping(path, "recipe")
 
 
+def parse_override(item: str, origin: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` as (key, value parsed as YAML; an empty value is ""); ``origin`` names
+    where the item came from in the error."""
+    key, sep, value_text = item.partition("=")
+    if not sep or not key:
+        raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
+    try:
+        return key, yaml.safe_load(value_text) if value_text.strip() else ""
+    except yaml.YAMLError as exc:
+        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {exc}") from exc
+
+
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
     """Apply ``a.b.c=value`` overrides to a recipe dict (returns a new dict).
 
@@ -154,13 +166,7 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
     """
     result = yaml.safe_load(yaml.safe_dump(raw))  # deep copy of plain data
     for item in overrides:
-        key, sep, value_text = item.partition("=")
-        if not sep or not key:
-            raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
-        try:
-            value = yaml.safe_load(value_text) if value_text.strip() else ""
-        except yaml.YAMLError as exc:
-            raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {exc}") from exc
+        key, value = parse_override(item, origin)
         node: Any = result
         parts = key.split(".")
         for depth, part in enumerate(parts[:-1]):
