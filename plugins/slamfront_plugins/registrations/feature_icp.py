@@ -8,7 +8,7 @@ import numpy as np
 
 from slamfront import Frame, Registration, StageInputs
 from slamfront.core.clouds import transform_points
-from slamfront.core.geometry import invert, relative
+from slamfront.core.geometry import invert
 from slamfront.messages import CloudRegistration, LoopResult, Message, PointCloud, RegisteredTrajectory, RelativePose
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, UnusableFrame, prepare_cloud
 from slamfront_plugins.registrations.config import FeatureIcpConfig
@@ -78,7 +78,8 @@ class FeatureIcp(Registration):
         if aligned and registration.target == previous:
             return [RelativePose(previous, frame, registration.transform, method=method,
                                  inliers=registration.n_correspondences)]
-        guessed = RelativePose(previous, frame, relative(self._poses[previous], self._poses[frame]),
+        # _place has just set _motion to this frame's pose relative to the previous one
+        guessed = RelativePose(previous, frame, self._motion,
                                information=np.diag(PRIOR_INFORMATION), method="motion prior (not registered)")
         if not aligned:
             return [guessed]
