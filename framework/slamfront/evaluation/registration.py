@@ -4,8 +4,6 @@ model written as ``model.ply``."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from slamfront.core.trajectory import delta_pairs, relative_pose_error
@@ -21,23 +19,6 @@ REGISTERED = ("first", "aligned", "fallback")
 MAX_TABLE_ROWS = 300
 
 
-@dataclass(frozen=True)
-class _Pair:
-    """What the report keeps of one ``CloudRegistration`` (no clouds)."""
-
-    frame: int
-    target: int
-    outcome: str
-    method: str
-    pose: np.ndarray
-    transform: np.ndarray | None
-    fitness: float
-    inlier_rmse: float
-    n_points: int
-    reason: str
-    seconds: dict[str, float]
-
-
 class RegistrationEvaluation(Evaluation):
     """Scores a registration's poses against the source's and reports its steps and timings."""
 
@@ -45,7 +26,7 @@ class RegistrationEvaluation(Evaluation):
 
     def __init__(self) -> None:
         self._truth: dict[int, np.ndarray] = {}
-        self._pairs: dict[int, _Pair] = {}
+        self._pairs: dict[int, CloudRegistration] = {}
         self._trajectory: RegisteredTrajectory | None = None
         self._model: PointCloud | None = None
 
@@ -53,10 +34,7 @@ class RegistrationEvaluation(Evaluation):
         if isinstance(message, FrameInfo) and message.pose is not None:
             self._truth[message.frame] = message.pose
         elif isinstance(message, CloudRegistration):
-            self._pairs[message.frame] = _Pair(
-                message.frame, message.target, message.outcome, message.method, message.pose, message.transform,
-                message.fitness, message.inlier_rmse, message.n_points, message.reason, dict(message.seconds),
-            )
+            self._pairs[message.frame] = message  # frozen, and it carries no cloud
         elif isinstance(message, RegisteredTrajectory):
             self._trajectory = message
         elif isinstance(message, PointCloud) and message.role == "model":
@@ -104,8 +82,8 @@ class RegistrationEvaluation(Evaluation):
         markdown = self._markdown(metrics, steps, pairs, per_frame, figures)
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
 
-    def _per_frame_errors(self, poses: dict[int, np.ndarray]) -> dict[int, tuple[int, float, float]]:
-        """RPE of each frame against the previous frame with both poses: {frame: (previous, m, deg)}."""
+    def _per_frame_errors(self, poses: dict[int, np.ndarray]) -> dict[int, tuple[float, float]]:
+        """RPE of each frame against the previous frame with both poses: {frame: (m, deg)}."""
         frames = [f for f in sorted(poses) if f in self._truth]
         if len(frames) < 2:
             return {}
@@ -113,7 +91,7 @@ class RegistrationEvaluation(Evaluation):
         truth = np.stack([self._truth[f] for f in frames])
         error = relative_pose_error(truth, estimated, delta_pairs(np.arange(len(frames)), 1))
         translation, rotation = error.translation, error.rotation_deg
-        return {frames[k + 1]: (frames[k], float(translation[k]), float(rotation[k])) for k in range(len(frames) - 1)}
+        return {frames[k + 1]: (float(translation[k]), float(rotation[k])) for k in range(len(frames) - 1)}
 
     def _end_to_end(self, poses: dict[int, np.ndarray]) -> float | None:
         frames = [f for f in sorted(poses) if f in self._truth]
@@ -124,7 +102,7 @@ class RegistrationEvaluation(Evaluation):
         truth = np.stack([self._truth[first], self._truth[last]])
         return float(relative_pose_error(truth, estimated, np.array([[0, 1]])).translation[0])
 
-    def _step_seconds(self, pairs: list[_Pair]) -> dict[str, float]:
+    def _step_seconds(self, pairs: list[CloudRegistration]) -> dict[str, float]:
         total: dict[str, float] = {}
         for pair in pairs:
             for step, seconds in pair.seconds.items():
@@ -147,8 +125,8 @@ class RegistrationEvaluation(Evaluation):
         self,
         metrics: dict[str, float | int | str | None],
         steps: dict[str, float],
-        pairs: list[_Pair],
-        per_frame: dict[int, tuple[int, float, float]],
+        pairs: list[CloudRegistration],
+        per_frame: dict[int, tuple[float, float]],
         figures: list[str],
     ) -> str:
         # the configured method is what the first attempts were called ("fpfh+ransac+icp",
@@ -189,7 +167,7 @@ class RegistrationEvaluation(Evaluation):
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
         ]
         for pair in pairs[:MAX_TABLE_ROWS]:
-            _, error_m, error_deg = per_frame.get(pair.frame, (-1, None, None))
+            error_m, error_deg = per_frame.get(pair.frame, (None, None))
             s = pair.seconds
             lines.append(
                 f"| {pair.frame} | {pair.target if pair.target >= 0 else ''} | {pair.outcome} | {pair.method} | "
@@ -207,8 +185,8 @@ class RegistrationEvaluation(Evaluation):
     def _plots(
         self,
         context: EvaluationContext,
-        pairs: list[_Pair],
-        per_frame: dict[int, tuple[int, float, float]],
+        pairs: list[CloudRegistration],
+        per_frame: dict[int, tuple[float, float]],
         final: dict[int, np.ndarray],
     ) -> list[str]:
         out = context.out_dir
@@ -223,7 +201,7 @@ class RegistrationEvaluation(Evaluation):
             keys = np.array(sorted(per_frame), dtype=np.int64)
             fitness = np.array([self._pairs[int(f)].fitness for f in keys], dtype=np.float64)
             figures.append(plots.pair_errors(
-                keys, np.array([per_frame[int(f)][1] for f in keys]), np.array([per_frame[int(f)][2] for f in keys]),
+                keys, np.array([per_frame[int(f)][0] for f in keys]), np.array([per_frame[int(f)][1] for f in keys]),
                 fitness, out / "registration_errors.png", "relative pose error per pair",
             ).name)
         step_frames = np.array([p.frame for p in pairs], dtype=np.int64)
@@ -242,9 +220,9 @@ class RegistrationEvaluation(Evaluation):
         return figures
 
 
-def _rpe_metrics(per_frame: dict[int, tuple[int, float, float]], suffix: str) -> dict[str, float | int | None]:
-    translation = np.array([v[1] for v in per_frame.values()], dtype=np.float64)
-    rotation = np.array([v[2] for v in per_frame.values()], dtype=np.float64)
+def _rpe_metrics(per_frame: dict[int, tuple[float, float]], suffix: str) -> dict[str, float | int | None]:
+    translation = np.array([v[0] for v in per_frame.values()], dtype=np.float64)
+    rotation = np.array([v[1] for v in per_frame.values()], dtype=np.float64)
     if len(translation) == 0:
         return {f"rpe_rmse_m{suffix}": None, f"n_rpe_pairs{suffix}": 0}
     return {
