@@ -1,6 +1,6 @@
 """Descriptor distance distributions, and the bow_bayes thresholds T_ND1 / T_ND2 derived from them.
 
-The seed's T_ND1 = 0.001 and T_ND2 = 0.08 are SURF-64 values, and OpenCV's wheels have
+Wang et al. 2017's T_ND1 = 0.001 and T_ND2 = 0.08 are SURF-64 values, and OpenCV's wheels have
 no SURF; this script measures, for every descriptor type slamfront has, the two
 distributions the thresholds separate and prints the derived values (copied into
 ``plugins/slamfront_plugins/loop_detectors/bow_thresholds.py``):

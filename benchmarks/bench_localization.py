@@ -35,7 +35,7 @@ DESCRIPTORS = ("orb", "sift", "brisk", "akaze")
 MATCHING = {"paper": "null", "paper + ratio 0.8": "0.8"}
 SAMPLES = ("redwood_localize", "room_localize", "icl_localize")
 
-# seed 002, tables 5-8 (TUM RGB-D; SURF was in OpenCV 3.0's contrib then)
+# Barbosa 2017, tables 5-8 (TUM RGB-D; SURF was in OpenCV 3.0's contrib then)
 PUBLISHED = (
     "| descriptor | keyframes (t. 5) | RPE RMSE m (t. 6) | ATE RMSE m (t. 7) | ATE RMSE cm fr1/desk (t. 8) |\n"
     "| --- | --- | --- | --- | --- |\n"
@@ -118,7 +118,7 @@ def main() -> None:
         kidnapped(descriptors),
         "## Real RGB-D samples (5 frames each): keyframes and queries from the same sequence",
         samples(descriptors),
-        "## Published (seed 002, TUM RGB-D fr2/pioneer_slam, 2,900 frames; fr1/desk for table 8)",
+        "## Published (Barbosa 2017, TUM RGB-D fr2/pioneer_slam, 2,900 frames; fr1/desk for table 8)",
         PUBLISHED,
     ])
     publish("localization", "Keyframe localization accuracy", body)

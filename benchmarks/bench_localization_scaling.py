@@ -1,4 +1,4 @@
-"""Localization latency vs number of keyframes: brute force (seed 002) vs pre-selection.
+"""Localization latency vs number of keyframes: brute force (Barbosa 2017) vs pre-selection.
 
 A synthetic street is driven once with one keyframe per metre (every rendered frame
 becomes a keyframe, ORB, 500 features, 320x240); query frames from a second drive

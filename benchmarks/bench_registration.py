@@ -1,4 +1,4 @@
-"""Point-cloud registration speed (seed 002, section 5.3, tables 9-11).
+"""Point-cloud registration speed (Barbosa 2017, section 5.3, tables 9-11).
 
 1. The paper's three configurations -- ICP alone, PFH + SAC-IA + ICP, FPFH + SAC-IA + ICP
    (RANSAC on feature matches plays SAC-IA's role) -- on 46 synthetic 640x480 RGB-D
@@ -40,7 +40,7 @@ CONFIGURATIONS = {
     "PFH + RANSAC + ICP": ["registration.params.feature=pfh", "registration.params.initial_alignment=ransac"],
     "FPFH + RANSAC + ICP": ["registration.params.feature=fpfh", "registration.params.initial_alignment=ransac"],
 }
-PAPER_SECONDS = {  # seed 002, tables 9, 10 and 11 (PCL on an i7 2.9 GHz, 46 Kinect clouds)
+PAPER_SECONDS = {  # Barbosa 2017, tables 9, 10 and 11 (PCL on an i7 2.9 GHz, 46 Kinect clouds)
     "ICP alone": {"features": None, "initial_alignment": None, "icp": 5380.0, "total": 5380.0},
     "PFH + RANSAC + ICP": {"features": 593533.0, "initial_alignment": 5654.0, "icp": 3440.0, "total": 602690.0},
     "FPFH + RANSAC + ICP": {"features": 22787.0, "initial_alignment": 6359.0, "icp": 4032.0, "total": 33237.0},

@@ -1,8 +1,8 @@
 """Choose the place threshold nu of the ``hierarchical`` place map from a reference traversal alone.
 
-Seed 000 leaves nu open. We pick it without looking at any query: run the recipe's
+Rodrigues 2019 leaves nu open. We pick it without looking at any query: run the recipe's
 source and descriptor over the *reference* frames only and take the nu whose places
-hold, on average, as many frames as the seed's own maps did (Table 4.4: GPW 200 frames
+hold, on average, as many frames as Rodrigues 2019's own maps did (Table 4.4: GPW 200 frames
 in 112 places, UofA 646 in 236, i.e. 1.79 and 2.74 frames per place; mean 2.26).
 
     .venv/bin/python scripts/choose_place_threshold.py recipes/nordland_hsl.yaml

@@ -1,4 +1,4 @@
-"""The Bayes filter against posteriors computed by hand from the seed's eqs. 6-12."""
+"""The Bayes filter against posteriors computed by hand from Wang et al. 2017's eqs. 6-12."""
 
 from __future__ import annotations
 

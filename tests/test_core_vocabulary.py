@@ -1,4 +1,4 @@
-"""The online vocabulary: the seed's fig. 1/2 situations, the rules' edge cases, word life cycle."""
+"""The online vocabulary: Wang et al. 2017's fig. 1/2 situations, the rules' edge cases, word life cycle."""
 
 from __future__ import annotations
 

@@ -251,7 +251,7 @@ def test_loop_detector_matches_become_verified_loop_edges(shared_data: Path) -> 
 
 
 def test_a_registration_run_is_bit_reproducible(redwood_run, tmp_path: Path) -> None:
-    """Same recipe, same data: the same registration messages, bit for bit (issue 9's
+    """Same recipe, same data: the same registration messages, bit for bit (the replay
     contract; Open3D runs single-threaded while aligning by default for this)."""
     again = _run("redwood_register", tmp_path, plots=True)
     assert stage_topic_bytes(again.log_path, "/registration/") == stage_topic_bytes(redwood_run.log_path, "/registration/")

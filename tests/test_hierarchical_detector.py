@@ -1,5 +1,5 @@
 """The hierarchical sequence detector online, end to end: hand-made routes, the no-answer paths,
-and the synthetic world (seed 000 ch. 3)."""
+and the synthetic world (Rodrigues 2019 ch. 3)."""
 
 from __future__ import annotations
 

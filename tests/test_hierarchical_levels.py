@@ -1,4 +1,4 @@
-"""Each level of the hierarchical sequence detector on hand-made cases (seed 000 §3.2)."""
+"""Each level of the hierarchical sequence detector on hand-made cases (Rodrigues 2019 §3.2)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The hierarchical place map: places by threshold nu, the map graph, exact search (seed 000 §3.1)."""
+"""The hierarchical place map: places by threshold nu, the map graph, exact search (Rodrigues 2019 §3.1)."""
 
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ def test_nordland_segment_through_the_whole_harness(shared_data: Path, tmp_path:
     assert metrics["n_places_reference"] < 400 and metrics["n_searches"] < metrics["n_places_query"] / 4
     assert 0.3 <= metrics["retrieval_recall_at_20"] <= 1.0 and len(metrics["retrieval_recall_curve"]) == 20
     report = result.report_path.read_text()
-    assert "Search space (seed 000 Table 4.4)" in report and "retrieval.png" in report
+    assert "Search space (Rodrigues 2019 Table 4.4)" in report and "retrieval.png" in report
     for figure in ("pr.png", "matches.png", "retrieval.png"):
         assert (tmp_path / figure).stat().st_size > 1000
 

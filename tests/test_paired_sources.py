@@ -1,4 +1,4 @@
-"""Paired-traversal sources: dataset layouts, selection, the seed's experiments 2 and 3, bad input."""
+"""Paired-traversal sources: dataset layouts, selection, Rodrigues 2019's experiments 2 and 3, bad input."""
 
 from __future__ import annotations
 

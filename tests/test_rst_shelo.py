@@ -1,4 +1,4 @@
-"""The RST-SHelo descriptor and the seed's preprocessing."""
+"""The RST-SHelo descriptor and Rodrigues 2019's preprocessing."""
 
 from __future__ import annotations
 
@@ -136,10 +136,10 @@ def test_an_image_smaller_than_the_grid_is_a_clear_error() -> None:
 
 
 def test_nordland_retrieval_with_and_without_preprocessing(shared_data: Path) -> None:
-    """Seed 000 §4.2 on real data (frames 0-399, summer vs winter, zeta = 3): a correct
+    """Rodrigues 2019 §4.2 on real data (frames 0-399, summer vs winter, zeta = 3): a correct
     reference among the 1 and the 20 nearest descriptors. On this stretch the two settings
     are close (measured 0.40/0.82 with, 0.35/0.77 without); over the whole route the
-    seed's preprocessing retrieves less on these 64 x 32 frames (README, Results)."""
+    preprocessing of Rodrigues 2019 retrieves less on these 64 x 32 frames (docs/results.md)."""
     folder = shared_data / "nordland"
     names = sorted(p.name for p in (folder / "summer").glob("*.png"))[:400]
 

@@ -90,7 +90,7 @@ def test_trajectory_offsets() -> None:
     assert offsets.shape == (5, 11)
     assert offsets[0].tolist() == [0, 0, 1, 2, 3, 4, 4, 5, 6, 7, 8]
     assert offsets[2].tolist() == list(range(11))
-    assert trajectory_offsets(40, 1.0, 1.5).shape == (21, 41)  # the seed paper's setting
+    assert trajectory_offsets(40, 1.0, 1.5).shape == (21, 41)  # Rodrigues 2019's setting
     with pytest.raises(CoreError, match="even"):
         trajectory_offsets(9, 1.0, 1.0)
 

@@ -1,6 +1,6 @@
 """Where data lives: the data root and recipe paths relative to it.
 
-The data root is ``$SLAMFRONT_DATA`` when set, else ``../shared/data`` next to the
+The data root is ``$SLAMFRONT_DATA`` when set, else ``shared/data`` beside the source
 checkout. A relative path in a plugin config typed :data:`DataPath` is resolved against
 it, so recipes stay portable between machines.
 """
@@ -22,7 +22,7 @@ def checkout_root() -> Path:
 
 
 def data_root() -> Path:
-    """``$SLAMFRONT_DATA``, else ``<checkout>/../shared/data``."""
+    """``$SLAMFRONT_DATA``, else ``shared/data`` beside the source checkout."""
     env = os.environ.get(DATA_ENV)
     if env:
         return Path(env).expanduser().resolve()

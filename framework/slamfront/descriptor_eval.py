@@ -1,4 +1,4 @@
-"""The descriptor tests of seed 002, chapter 5.1, on any image sequence.
+"""The descriptor tests of Barbosa 2017, chapter 5.1, on any image sequence.
 
 For each descriptor and each target frame (drawn at random, as the paper's 16):
 

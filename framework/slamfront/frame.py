@@ -12,7 +12,7 @@ Traversal = Literal["reference", "query", "stream"]
 """Which part of the run a frame belongs to.
 
 ``reference`` frames build a map, ``query`` frames are searched against it (paired
-traversals, as in the seed papers' protocol), ``stream`` frames do both (a single
+traversals, as in the published protocols), ``stream`` frames do both (a single
 traversal that revisits places).
 """
 

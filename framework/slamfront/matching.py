@@ -1,4 +1,4 @@
-"""Two-image matching as seed 002 does it (§4.1.2): brute force, a distance threshold, RANSAC.
+"""Two-image matching as Barbosa 2017 does it (§4.1.2): brute force, a distance threshold, RANSAC.
 
 1. **Brute force**: every descriptor of image A takes its nearest descriptor in image B
    (L2 for float descriptors, Hamming for binary ones).
@@ -29,7 +29,7 @@ Geometry = Literal["fundamental", "homography", "none"]
 
 DEFAULT_MAX_DISTANCE = MappingProxyType(
     {
-        # Set as the paper did, empirically (seed 002 §4.1.2), from measured distances
+        # Set as the paper did, empirically (Barbosa 2017 §4.1.2), from measured distances
         # (`slamfront eval descriptors` plots them): about the 95th percentile of the
         # distances of correct matches (ratio-tested, RANSAC-verified, neighbouring frames
         # of the synthetic world), which is where the nearest neighbours of unrelated
@@ -99,7 +99,7 @@ class TwoViewMatch:
 
     @property
     def inliers(self) -> int:
-        """The similarity of the two images (seed 002): the number of surviving matches."""
+        """The similarity of the two images (Barbosa 2017): the number of surviving matches."""
         return len(self.pairs)
 
 

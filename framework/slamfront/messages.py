@@ -531,11 +531,11 @@ class BowStatistics(Message):
     n_features: int
     new_words: int
     vocabulary_size: int
-    """Words kept so far, in working or long-term memory (the seed's fig. 4)."""
+    """Words kept so far, in working or long-term memory (Wang et al. 2017, fig. 4)."""
     active_words: int
     """Words the nearest-word search scans (those of STM and WM places)."""
     quantisation_error: float
-    """Mean distance of the frame's features to their words (the seed's fig. 6)."""
+    """Mean distance of the frame's features to their words (Wang et al. 2017, fig. 6)."""
     update_rule: str = "greedy"
     other_rule: str = ""
     """The other update rule, when the detector also tracks its vocabulary for comparison."""
@@ -547,17 +547,17 @@ class BowStatistics(Message):
     """The frame was more similar than T_sim to the previous one and merged into its place."""
     stm_size: int = 0
     wm_size: int = 0
-    """Places in working memory after this frame (the seed's fig. 9a)."""
+    """Places in working memory after this frame (Wang et al. 2017, fig. 9a)."""
     ltm_size: int = 0
     transferred: int = 0
     retrieved: int = 0
     no_loop_posterior: float = float("nan")
     max_loop_posterior: float = float("nan")
-    """The largest p(S_t = i) (the seed's fig. 7)."""
+    """The largest p(S_t = i) (Wang et al. 2017, fig. 7)."""
     loop_threshold: float = float("nan")
     """T_loop: a loop is accepted when ``no_loop_posterior`` is below it."""
     processing_seconds: float = 0.0
-    """This frame's detector time (the seed's fig. 9b)."""
+    """This frame's detector time (Wang et al. 2017, fig. 9b)."""
     time_budget_seconds: float = 0.0
 
 

@@ -67,7 +67,7 @@ class EvalOptions(_Strict):
     )
     retrieval_max_k: int = Field(
         20, ge=0, description="descriptor retrieval: recall when a correct reference is among the psi "
-        "nearest, psi = 1..this (seed 000 figs 4.1/4.2); 0 turns it off",
+        "nearest, psi = 1..this (Rodrigues 2019 figs 4.1/4.2); 0 turns it off",
     )
 
 

@@ -1,4 +1,4 @@
-"""``slamfront eval descriptors SOURCE``: seed 002's descriptor tests (chapter 5.1) with a report."""
+"""``slamfront eval descriptors SOURCE``: Barbosa 2017's descriptor tests (chapter 5.1) with a report."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from slamfront.imageio import list_images, read_image
 from slamfront.local_features import DESCRIPTORS, DETECTORS, SURF_UNAVAILABLE
 from slamfront.matching import MatchingConfig
 
-# seed 002, tables 3 and 4 (TUM RGB-D fr2/pioneer_slam, OpenCV 3.0, SURF included)
+# Barbosa 2017, tables 3 and 4 (TUM RGB-D fr2/pioneer_slam, OpenCV 3.0, SURF included)
 PUBLISHED = {
     "brief": (62.14, 292.7262),
     "brisk": (19.48, 140.3895),
@@ -31,9 +31,9 @@ PUBLISHED = {
 def add_parser(tools: argparse._SubParsersAction) -> None:
     parser = tools.add_parser(
         "descriptors",
-        help="seed 002's descriptor tests: local, global (top-5), matching speed, dissimilarity",
+        help="Barbosa 2017's descriptor tests: local, global (top-5), matching speed, dissimilarity",
         description=(
-            "Run the descriptor tests of seed 002, chapter 5.1, on an image sequence: SOURCE is a folder of "
+            "Run the descriptor tests of Barbosa 2017, chapter 5.1, on an image sequence: SOURCE is a folder of "
             "images (natural name order; relative paths also under the data root) or a recipe whose source "
             "gives the frames (e.g. a synthetic world). Writes report.md, metrics.json and plots."
         ),
@@ -148,11 +148,11 @@ def _report(study: DescriptorEvaluation, source: str, figures: list[str]) -> str
     parts = [
         f"# Descriptor evaluation: {source}",
         f"{study.n_frames} frames. Target frames (0-based): {targets}. Local test ±{study.neighbours} frames; "
-        f"global test top {study.top}. Matching as seed 002 §4.1.2: brute force, distance threshold, RANSAC; "
+        f"global test top {study.top}. Matching as Barbosa 2017 §4.1.2: brute force, distance threshold, RANSAC; "
         "a match count is the number of RANSAC inliers.",
         "## Speed and dissimilarity (tables 3 and 4)",
         _summary_table(study),
-        "Published (seed 002, TUM RGB-D fr2/pioneer_slam, another machine and OpenCV 3.0; different data):\n\n"
+        "Published (Barbosa 2017, TUM RGB-D fr2/pioneer_slam, another machine and OpenCV 3.0; different data):\n\n"
         "| descriptor | match ms (table 3) | dissimilarity (table 4) |\n| --- | --- | --- |\n"
         + "\n".join(f"| {name} | {ms} | {dis} |" for name, (ms, dis) in PUBLISHED.items()),
         f"## Global test (tables 1 and 2): the {study.top} most similar frames, Q/C = frame/matches",

@@ -19,7 +19,7 @@ TIMED_FORMATS = ("tum",)
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "eval",
-        help="evaluate outside a run: trajectories (ATE/RPE), local descriptors (seed 002 ch. 5.1)",
+        help="evaluate outside a run: trajectories (ATE/RPE), local descriptors (Barbosa 2017 ch. 5.1)",
         description="Evaluation tools that work on files, outside a recipe run.",
     )
     tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True)

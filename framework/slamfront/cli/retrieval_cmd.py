@@ -19,7 +19,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="descriptor retrieval curves (correct reference among the psi nearest), for several settings",
         description=(
             "Run a recipe's source and descriptor only and plot, for psi = 1..K, how often a correct reference "
-            "is among each query's psi nearest reference descriptors (seed 000 figs 4.1/4.2). --compare "
+            "is among each query's psi nearest reference descriptors (Rodrigues 2019 figs 4.1/4.2). --compare "
             "draws one curve per value, e.g. --compare descriptor.params.preprocess=true,false."
         ),
     )

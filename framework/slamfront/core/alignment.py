@@ -52,7 +52,7 @@ def apply(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray, sca
 def ate_rmse(est: np.ndarray, gt: np.ndarray, with_scale: bool = False) -> float:
     """Root-mean-square position error after aligning ``est`` (N, d) onto ``gt`` (N, d).
 
-    The translational ATE of Sturm et al. 2012 (eq. 4.5 of seed 002) for already
+    The translational ATE of Sturm et al. 2012 (eq. 4.5 of Barbosa 2017) for already
     associated positions.
     """
     rotation, translation, scale = umeyama(est, gt, with_scale)

@@ -1,11 +1,11 @@
-"""Bags of visual words and the seed 001 image similarity (eq. 5), with an inverted index.
+"""Bags of visual words and the Wang et al. 2017 image similarity (eq. 5), with an inverted index.
 
 A bag is the multiset of word ids of an image's features. Two bags share a *pair* for
 every feature of one that can be paired with a feature of the other on the same word:
 ``N_pair = sum_w min(count_a(w), count_b(w))``. The similarity divides it by the larger
 bag: ``sim = N_pair / max(|a|, |b|)``, in [0, 1].
 
-RTAB-Map counts only words seen exactly once in both signatures; the seed speaks of
+RTAB-Map counts only words seen exactly once in both signatures; Wang et al. 2017 speaks of
 "common word pairs" without that restriction, so repeated words pair up to the smaller
 count here.
 """

@@ -1,4 +1,4 @@
-"""The discrete Bayes filter over loop-closure hypotheses of seed 001 (§1.3, after RTAB-Map).
+"""The discrete Bayes filter over loop-closure hypotheses of Wang et al. 2017 (§1.3, after RTAB-Map).
 
 The state S_t is -1 ("no loop at time t") or the id i of a place in working memory
 ("image t closes a loop with place i"). Each step (seed eqs. 6-12):
@@ -6,11 +6,11 @@ The state S_t is -1 ("no loop at time t") or the id i of a place in working memo
 - **prediction** (eqs. 10-11) from the previous posterior:
   ``p(-1 | -1) = 0.9``, ``p(-1 | j) = 0.1``, ``p(i | -1) = 0.1 / M`` (M = number of
   hypotheses), ``p(i | j) = 0.9 f(i - j) / sum_{k=-16..16} f(k)`` with f a Gaussian of
-  sigma 1.6 (eq. 12), zero beyond 16 places. The seed's eq. 11 is garbled in the
+  sigma 1.6 (eq. 12), zero beyond 16 places. Wang et al. 2017's eq. 11 is garbled in the
   published text ("0.9 f(i) / (j + 16)" over a sum "from j to t"); this reading, a
   Gaussian window of j +- 16 normalised to 0.9, is the one consistent with RTAB-Map
   and with the ``j + 16`` that survives. A hypothesis new in working memory had no
-  posterior at t-1 (the seed sets it to 0).
+  posterior at t-1 (Wang et al. 2017 sets it to 0).
 - **likelihood** (eqs. 8-9) from the similarities ``sim_i`` of the image to each place,
   with mean mu and standard deviation sigma over the places:
   ``L(i) = (sim_i - sigma) / mu`` if ``sim_i >= mu + sigma`` else 1;
@@ -19,10 +19,10 @@ The state S_t is -1 ("no loop at time t") or the id i of a place in working memo
 - **decision**: a loop is accepted when ``p(S_t = -1) < T_loop``, with the most probable
   place.
 
-Edge cases the seed leaves open, settled as RTAB-Map does (``Rtabmap::adjustLikelihood``):
+Edge cases Wang et al. 2017 leaves open, settled as RTAB-Map does (``Rtabmap::adjustLikelihood``):
 when sigma is 0 (all similarities equal, e.g. one hypothesis or all zero) every
 ``L(i) = 1`` and ``L(-1) = 2``; ``ignore_zero_similarities`` computes mu and sigma over
-the non-zero similarities only (RTAB-Map's default; the seed uses all of them).
+the non-zero similarities only (RTAB-Map's default; Wang et al. 2017 uses all of them).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from slamfront.core.errors import CoreError
 
 @dataclass(frozen=True)
 class BayesParameters:
-    """The filter's constants (defaults: the seed's values)."""
+    """The filter's constants (defaults: Wang et al. 2017's values)."""
 
     stay_no_loop: float = 0.9
     """p(S_t = -1 | S_{t-1} = -1)."""
@@ -115,7 +115,7 @@ class BayesStep:
 
     @property
     def best_probability(self) -> float:
-        """The largest loop posterior (the seed's fig. 7), 0 when there is no hypothesis."""
+        """The largest loop posterior (Wang et al. 2017's fig. 7), 0 when there is no hypothesis."""
         return float(self.posterior.max()) if len(self.posterior) else 0.0
 
 

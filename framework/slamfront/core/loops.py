@@ -1,6 +1,6 @@
 """Loop-closure ground truth and precision-recall, on plain arrays.
 
-Conventions (DESIGN.md, "Contracts"): recall counts the queries that have a true match;
+Conventions (docs/design.md, "Contracts"): recall counts the queries that have a true match;
 precision counts accepted reports. A query answered with "no answer" is never accepted.
 Frames are identified by their stream index everywhere.
 """
@@ -50,7 +50,7 @@ class LoopGroundTruth:
 
         :param queries: (Q,) frame indices of the queries.
         :param centres: (Q,) frame index of each query's true match, -1 when it has none.
-        :param tolerance: zeta, in frames (3 in the seed paper).
+        :param tolerance: zeta, in frames (3 in Rodrigues 2019).
         :param valid: inclusive (first, last) frame indices a match may take (the
             reference traversal); the band is clipped to it.
         """
@@ -87,7 +87,7 @@ class LoopGroundTruth:
         route: the frame number in the original traversal, or metres); a query is at one
         or more places. A report is correct when the matched frame's place is within
         ``tolerance`` of one of the query's places. Unlike :meth:`band`, this stays right
-        when the candidates were reordered or partly replaced (seed 000 §4.4,
+        when the candidates were reordered or partly replaced (Rodrigues 2019 §4.4,
         experiments 2 and 3).
 
         :param queries: (Q,) frame indices of the queries.

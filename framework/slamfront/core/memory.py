@@ -1,4 +1,4 @@
-"""RTAB-Map memory management (Labbé & Michaud 2013), as seed 001 uses it.
+"""RTAB-Map memory management (Labbé & Michaud 2013), as Wang et al. 2017 uses it.
 
 Places live in one of three memories:
 
@@ -10,7 +10,7 @@ Places live in one of three memories:
   *retrieved* back into WM when a neighbour of theirs becomes the best loop hypothesis.
 
 Each place has a *weight*: how many images were merged into it because they were too
-similar to it (the seed's T_sim filter; RTAB-Map's rehearsal). When the processing time
+similar to it (Wang et al. 2017's T_sim filter; RTAB-Map's rehearsal). When the processing time
 of an image exceeds the time budget, the **lowest-weighted, then oldest** places are
 transferred from WM to LTM: one more than entered WM during that image
 (``Memory::forget``: "remove one more than total added during the iteration"), so WM

@@ -1,6 +1,6 @@
 """Sequence alignment on distance matrices: slide a query sequence along a longer one.
 
-Used by sequence-based loop detectors (template matching of seed 000, eq. 3.10). Pure
+Used by sequence-based loop detectors (template matching of Rodrigues 2019, eq. 3.10). Pure
 functions over arrays.
 """
 

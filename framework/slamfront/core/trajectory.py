@@ -1,6 +1,6 @@
 """Trajectory metrics of Sturm et al. 2012 (TUM RGB-D benchmark), on arrays.
 
-- **ATE** (absolute trajectory error, eqs. 4.4-4.5 of seed 002): align the estimate to
+- **ATE** (absolute trajectory error, eqs. 4.4-4.5 of Barbosa 2017): align the estimate to
   the ground truth (Horn/Umeyama, rigid or with scale), then ``F_i = Q_i^-1 S P_i``;
   statistics of ``|trans F_i|``.
 - **RPE** (relative pose error, eqs. 4.2-4.3): ``E_i = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` for

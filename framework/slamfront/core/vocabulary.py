@@ -1,15 +1,15 @@
-"""An online visual vocabulary with the two update rules of seed 001 (Wang et al. 2017).
+"""An online visual vocabulary with the two update rules of Wang et al. 2017.
 
 A *word* is one stored descriptor. Each new image's features are quantised to words,
 and the vocabulary grows with the features no word represents well. Two rules decide
 which features become new words:
 
-``nndr`` (RTAB-Map, the seed's algorithm 2)
+``nndr`` (RTAB-Map, Wang et al. 2017's algorithm 2)
     features in the order given; each is compared with the vocabulary *including the
     words this image has already added*; it becomes a new word iff ``ND / NND > T_NNDR``
     (ND, NND: distance to the nearest and second-nearest word).
 
-``greedy`` (the seed's algorithm 3, table 2)
+``greedy`` (Wang et al. 2017's algorithm 3, table 2)
     ND of every feature to the previous vocabulary V_{t-1} is computed first; features
     are processed in *decreasing* ND, each compared with V_{t-1} and the words added so
     far from this image, and: ``ND > T_ND2`` -> new word; ``ND < T_ND1`` -> nearest
@@ -18,7 +18,7 @@ which features become new words:
 Distances are plain L2 (float descriptors) or Hamming bits (uint8-packed binary ones).
 Without a second neighbour (an empty or one-word vocabulary) the ratio test cannot
 vouch that the nearest word is distinctive, so it counts as failed (``ND / NND = 1``)
-and the feature becomes a word, as in RTAB-Map's ``VWDictionary``. The seed's
+and the feature becomes a word, as in RTAB-Map's ``VWDictionary``. Wang et al. 2017's
 algorithm 1 starts ND and NND at 100, beyond any SURF distance, which would make the
 second feature of a run always join the first word; the greedy rule's T_ND1 / T_ND2
 still apply first.
@@ -97,7 +97,7 @@ def ratio(nd: float, nnd: float) -> float:
 
 
 def becomes_word(rule: UpdateRule, nd: float, nnd: float, thresholds: VocabularyThresholds) -> bool:
-    """The seed's decision for one feature (algorithm 2 line 6; algorithm 3 lines 9-17)."""
+    """Wang et al. 2017's decision for one feature (algorithm 2 line 6; algorithm 3 lines 9-17)."""
     if rule == "greedy":
         if nd > thresholds.nd_high:
             return True

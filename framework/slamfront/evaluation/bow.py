@@ -1,4 +1,4 @@
-"""Bag-of-words detector report: the seed 001 figures from the detector's per-frame statistics.
+"""Bag-of-words detector report: the Wang et al. 2017 figures from the detector's per-frame statistics.
 
 Fig. 4 (vocabulary size over time, both update rules when the detector tracks the
 other one), fig. 6 (mean quantisation error per image), fig. 7 (largest loop

@@ -134,7 +134,7 @@ class LoopClosureEvaluation(Evaluation):
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
 
     def _search_space(self, context: EvaluationContext) -> dict[str, int]:
-        """Seed 000 Table 4.4. Detectors without places search every frame: places = frames."""
+        """Rodrigues 2019 Table 4.4. Detectors without places search every frame: places = frames."""
         n_reference = sum(1 for t, _ in self._sequence_index.values() if t == "reference")
         n_query = sum(1 for t, _ in self._sequence_index.values() if t in ("query", "stream"))
         answered = sum(1 for r in self._results.values() if r.match >= 0)
@@ -149,7 +149,7 @@ class LoopClosureEvaluation(Evaluation):
     @staticmethod
     def _search_space_table(space: dict[str, int]) -> str:
         return "\n".join([
-            "Search space (seed 000 Table 4.4):",
+            "Search space (Rodrigues 2019 Table 4.4):",
             "",
             "| frames per traversal (ref / query) | reference places | query places | searches for a loop |",
             "| --- | --- | --- | --- |",

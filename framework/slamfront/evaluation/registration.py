@@ -1,5 +1,5 @@
 """Registration evaluation: relative pose error against the given poses, per pair and as
-RMSE, quality and time of every step (the seed's tables 9-11 layout), and the global
+RMSE, quality and time of every step (Barbosa 2017's tables 9-11 layout), and the global
 model written as ``model.ply``."""
 
 from __future__ import annotations
@@ -148,7 +148,7 @@ class RegistrationEvaluation(Evaluation):
             "| --- | --- |",
             *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items() if not key.startswith("seconds_")),
             "",
-            f"### Time per step ({len(pairs)} clouds; the seed's tables 9-11 layout)",
+            f"### Time per step ({len(pairs)} clouds; Barbosa 2017's tables 9-11 layout)",
             "",
             "| step | seconds | share |",
             "| --- | --- | --- |",

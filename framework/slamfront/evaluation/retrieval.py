@@ -1,7 +1,7 @@
 """Descriptor retrieval: how often a correct reference is among a query's psi nearest
-reference descriptors, for psi = 1..K (seed 000 §4.2, figs 4.1 and 4.2).
+reference descriptors, for psi = 1..K (Rodrigues 2019 §4.2, figs 4.1 and 4.2).
 
-It measures the descriptor alone, before any place map or sequence logic: the seed
+It measures the descriptor alone, before any place map or sequence logic: Rodrigues 2019
 uses it to show that its preprocessing retrieves more correct images. Every run with a
 global descriptor and a paired source reports it; ``slamfront retrieval`` overlays the
 curves of several descriptor settings (with and without preprocessing, say).

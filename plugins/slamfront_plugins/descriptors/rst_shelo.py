@@ -1,4 +1,4 @@
-"""The ``rst_shelo`` descriptor: a global histogram of cell edge orientations (seed 000 §3.1).
+"""The ``rst_shelo`` descriptor: a global histogram of cell edge orientations (Rodrigues 2019 §3.1).
 
 RST-SHELO (Saavedra 2015) describes where edges of each orientation are in the image:
 
@@ -15,12 +15,12 @@ RST-SHELO (Saavedra 2015) describes where edges of each orientation are in the i
 4. The block histograms are concatenated, L1-normalised, square-rooted (the "square
    root normalisation" of RST-SHELO, as in RootSIFT) and L1-normalised again.
 
-Distances are L1 (seed 000, Table 3.1), between 0 and 2; the place map's similarity is
+Distances are L1 (Rodrigues 2019, Table 3.1), between 0 and 2; the place map's similarity is
 ``1 - D / 2``. Sketch tokens, the edge detector RST-SHELO uses for sketches, need a
-trained forest; on photographs the seed applies the descriptor to preprocessed images
+trained forest; on photographs Rodrigues 2019 applies the descriptor to preprocessed images
 directly, and so do we.
 
-Preprocessing (seed 000 §3.1.1, §4.2): grey, Gaussian blur 5x5, histogram equalisation.
+Preprocessing (Rodrigues 2019 §3.1.1, §4.2): grey, Gaussian blur 5x5, histogram equalisation.
 
 An image whose raw mean gradient magnitude is below ``min_edge_strength`` (a tunnel,
 a lens cap, a black frame) has no edges to describe: its descriptor is all zeros, which
@@ -28,7 +28,7 @@ detectors read as "featureless" and answer with no match instead of a guess. Wit
 this check, equalisation would stretch sensor noise into strong random edges.
 
 Defaults (chosen on a tuning split, Nordland frames 0-999, by retrieval with the
-seed's preprocessing; the table is in docs/loop_closure.md): 32 x 16 cells (2 x 2
+Rodrigues 2019's preprocessing; the table is in docs/loop_closure.md): 32 x 16 cells (2 x 2
 pixels on the 64 x 32 Nordland frames), 4 x 4 cells per block (8 x 4 blocks), 9 bins:
 288 values. Finer grids left too few pixels per cell for a stable orientation, coarser
 blocks lost the spatial layout, 9 bins matched or beat 6 and 12, and votes weighted by
@@ -51,7 +51,7 @@ MAX_L1_DISTANCE = 2.0
 
 
 def preprocess(gray: np.ndarray, gaussian_kernel: int = 5, equalise: bool = True) -> np.ndarray:
-    """Seed 000 §3.1.1: Gaussian blur (``gaussian_kernel`` x ``gaussian_kernel``, sigma from
+    """Rodrigues 2019 §3.1.1: Gaussian blur (``gaussian_kernel`` x ``gaussian_kernel``, sigma from
     the size as OpenCV does; 0 or 1 = no blur) then histogram equalisation. (H, W) uint8 in and out."""
     out = gray
     if gaussian_kernel > 1:
@@ -133,7 +133,7 @@ def square_root_normalise(histogram: np.ndarray) -> np.ndarray:
 
 
 class RstShelo(Descriptor):
-    """RST-SHELO edge-orientation descriptor with the seed's Gaussian + equalisation preprocessing.
+    """RST-SHELO edge-orientation descriptor with Rodrigues 2019's Gaussian + equalisation preprocessing.
 
     A fixed grid of cells, one dominant orientation per cell, soft block histograms,
     square-root normalisation; compared with L1 (0..2). Featureless images (raw mean
@@ -145,7 +145,7 @@ class RstShelo(Descriptor):
     produces_global = True
 
     class Config(PluginConfig):
-        preprocess: bool = Field(True, description="Gaussian blur + histogram equalisation first (seed 000 §3.1.1)")
+        preprocess: bool = Field(True, description="Gaussian blur + histogram equalisation first (Rodrigues 2019 §3.1.1)")
         gaussian_kernel: int = Field(5, ge=0, description="side of the Gaussian kernel (odd; 0 or 1: no blur)")
         equalise: bool = Field(True, description="histogram equalisation after the blur (when preprocess is on)")
         cells_x: int = Field(32, ge=1, description="cells across the image (fixed count: cell size follows image size)")

@@ -16,7 +16,7 @@ from slamfront.messages import Features
 class SeqSlamThumbnail(Descriptor):
     """OpenSeqSLAM's image preprocessing: grey, resize (Lanczos), patch normalisation.
 
-    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8); the seed paper used 32x32.
+    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8); Rodrigues 2019 used 32x32.
     An image already of the target size is not resampled (OpenSeqSLAM reads Nordland's
     64x32 images as they are). The vector holds the normalised pixel values as uint8,
     compared by mean absolute difference (``l1``).
@@ -26,8 +26,8 @@ class SeqSlamThumbnail(Descriptor):
     produces_global = True
 
     class Config(PluginConfig):
-        width: int = Field(64, ge=8, description="thumbnail width (OpenSeqSLAM 64, seed paper 32)")
-        height: int = Field(32, ge=8, description="thumbnail height (OpenSeqSLAM 32, seed paper 32)")
+        width: int = Field(64, ge=8, description="thumbnail width (OpenSeqSLAM 64, Rodrigues 2019: 32)")
+        height: int = Field(32, ge=8, description="thumbnail height (OpenSeqSLAM 32, Rodrigues 2019: 32)")
         patch_size: int = Field(8, ge=2, description="patch side for normalisation")
         normalise: bool = Field(True, description="patch normalisation on (OpenSeqSLAM default) or off")
 

@@ -1,4 +1,4 @@
-"""The ``keyframe`` localizer: seed 002's topological keyframe map and global localization."""
+"""The ``keyframe`` localizer: Barbosa 2017's topological keyframe map and global localization."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from slamfront_plugins.localizers.keyframe_map import TopologicalMap, View
 
 
 class KeyframeLocalizer(Localizer):
-    """Keyframe map from local features and global localization against it (seed 002 §4.1).
+    """Keyframe map from local features and global localization against it (Barbosa 2017 §4.1).
 
     **Training** (``reference`` frames): the first frame is a keyframe; a frame whose
     two-image matches with the current keyframe fall below ``keyframe_fraction`` of

@@ -1,4 +1,4 @@
-"""The topological keyframe map of seed 002 §4.1.3: nodes described by local features.
+"""The topological keyframe map of Barbosa 2017 §4.1.3: nodes described by local features.
 
 Each node stores a keyframe's keypoints, descriptors, pose and (with depth) the 3-D
 points of its keypoints. A frame is compared with the nodes by two-image matching

@@ -1,4 +1,4 @@
-"""The ``bow_bayes`` loop detector: seed 001's online vocabulary, Bayes filter and memory."""
+"""The ``bow_bayes`` loop detector: Wang et al. 2017's online vocabulary, Bayes filter and memory."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ class _Place:
     def frame(self) -> int:
         """The frame a loop to this place reports: the middle of the frames it covers.
 
-        The seed keeps the first image of a run of similar ones and drops the rest, so a
+        Wang et al. 2017 keeps the first image of a run of similar ones and drops the rest, so a
         place stands for all of them; the middle one is never more than half the run
         away from the frame the robot actually revisits.
         """
@@ -53,10 +53,10 @@ class _Vocabularies:
 
 
 class BowBayes(LoopDetector):
-    """Bag-of-words loop closure with a greedy online vocabulary and a Bayes filter (seed 001).
+    """Bag-of-words loop closure with a greedy online vocabulary and a Bayes filter (Wang et al. 2017).
 
     Each frame's local features are quantised to an online vocabulary built by the
-    seed's greedy rule (``vocabulary_update: greedy``: largest nearest-word distance
+    greedy rule of Wang et al. 2017 (``vocabulary_update: greedy``: largest nearest-word distance
     first, T_ND1 / T_ND2 / T_NNDR) or RTAB-Map's ratio rule (``nndr``). A frame more
     similar than T_sim to the previous one is merged into its place (no search; it
     repeats the previous answer). Otherwise the frame's similarity to every place in
@@ -76,7 +76,7 @@ class BowBayes(LoopDetector):
 
     class Config(PluginConfig):
         vocabulary_update: UpdateRule = Field(
-            "greedy", description="greedy: the seed's rule (T_ND1/T_ND2/T_NNDR, largest ND first); nndr: RTAB-Map's"
+            "greedy", description="greedy: Wang et al. 2017's rule (T_ND1/T_ND2/T_NNDR, largest ND first); nndr: RTAB-Map's"
         )
         compare_rules: bool = Field(
             False, description="also build the other rule's vocabulary from the same frames (report figs 4 and 6)"

@@ -1,6 +1,6 @@
 """Default T_ND1 / T_ND2 per descriptor type for the ``bow_bayes`` greedy vocabulary rule.
 
-The seed's values (T_ND1 = 0.001, T_ND2 = 0.08) are for 64-d SURF, which OpenCV's
+Wang et al. 2017's values (T_ND1 = 0.001, T_ND2 = 0.08) are for 64-d SURF, which OpenCV's
 wheels do not have; these are re-derived for each descriptor type from measured
 distance distributions by ``benchmarks/bench_bow_thresholds.py`` (results in
 ``benchmarks/results/bow_thresholds.md``; docs/bow_bayes.md explains the procedure):
@@ -13,10 +13,10 @@ distance distributions by ``benchmarks/bench_bow_thresholds.py`` (results in
   the warped image that is not its correspondence (what ND is for an unseen thing);
 - **T_ND1 = 1st percentile of the non-match distances**: below it, the nearest word
   is the same thing in at least 99 % of cases, so it represents the feature whatever
-  NND says (the seed's role for T_ND1: drop words that would only duplicate one);
+  NND says (Wang et al. 2017's role for T_ND1: drop words that would only duplicate one);
 - **T_ND2 = the equal-error distance**, where the share of matches above it equals the
   share of non-matches below it: above it the nearest word is more likely another
-  thing than the same one, so the feature becomes a word whatever NND says (the seed's
+  thing than the same one, so the feature becomes a word whatever NND says (Wang et al. 2017's
   role: never quantise with a large error). A high percentile of the match distances
   would not do: their tail (a corner re-detected at another scale) reaches past the
   median non-match distance.
@@ -46,4 +46,4 @@ ND_THRESHOLDS: Mapping[str, tuple[float, float]] = MappingProxyType(
 """(T_ND1, T_ND2) by descriptor type."""
 
 SEED_SURF_THRESHOLDS = {"T_sim": 0.2, "T_loop": 0.11, "T_NNDR": 0.8, "T_ND1": 0.001, "T_ND2": 0.08}
-"""The seed's table 4 (SURF-64 units), for reference."""
+"""Wang et al. 2017's table 4 (SURF-64 units), for reference."""

@@ -1,4 +1,4 @@
-"""The three levels of the hierarchical sequence detector (seed 000 §3.2), as pure logic.
+"""The three levels of the hierarchical sequence detector (Rodrigues 2019 §3.2), as pure logic.
 
 Sequences of map places are written ``(first, last)`` in map positions (inclusive).
 Nothing here reads the run: the detector (:mod:`.hierarchical_sequence`) feeds these

@@ -1,4 +1,4 @@
-"""The ``hierarchical_sequence`` loop detector: three-level sequence matching (seed 000 ch. 3).
+"""The ``hierarchical_sequence`` loop detector: three-level sequence matching (Rodrigues 2019 ch. 3).
 
 Online, as in Alg. 1: query frames arrive one at a time and the ``hierarchical`` place
 map groups them into places. When the rho-th place since the last query sequence is
@@ -23,7 +23,7 @@ had to wait. Every query frame ends with a ``LoopResult``: a match and a confide
 featureless frame, traversal ended before its sequence was complete). Each level-3
 decision is also logged as a ``SequenceDecision``.
 
-Deviations from the letter of the seed, where it is ambiguous or inconsistent:
+Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsistent:
 - the synthetic descriptor sequence (eq. 3.12) takes as many frames as Q-bar has, so
   eq. 3.13 compares sums of equal length; it is skipped when the map ends first;
 - a rebuilt sequence is the last rho places of the previous processed sequence plus
@@ -93,13 +93,13 @@ class _Iteration:
 
 
 class HierarchicalSequence(LoopDetector):
-    """Three-level sequence-based loop closure detection over a hierarchical place map (seed 000).
+    """Three-level sequence-based loop closure detection over a hierarchical place map (Rodrigues 2019).
 
     Query sequences of ``rho`` places are searched in the map: level 1 finds ``psi``
     candidate place sequences with the VP-tree, level 2 keeps the best one that is
     temporally consistent (``alpha``), level 3 aligns the frames and gives each query
     frame a match and a confidence, or an explicit no-answer. Needs the
-    ``hierarchical`` place map. Defaults: seed 000 Table 4.1.
+    ``hierarchical`` place map. Defaults: Rodrigues 2019 Table 4.1.
     """
 
     name = "hierarchical_sequence"
@@ -113,7 +113,7 @@ class HierarchicalSequence(LoopDetector):
             0.75, ge=0, le=1, description="operating point: matches at this confidence or more are accepted"
         )
         query_joins_map: bool = Field(
-            False, description="query places join the map after their iteration (seed §4.4 keeps the map "
+            False, description="query places join the map after their iteration (Rodrigues 2019 §4.4 keeps the map "
             "to the reference traversal; stream traversals always join)"
         )
         exclude_recent_places: int = Field(

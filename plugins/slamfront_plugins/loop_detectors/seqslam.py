@@ -1,7 +1,7 @@
 """The ``seqslam`` and ``seqslam_fast`` loop detectors (OpenSeqSLAM and a Fast-SeqSLAM variant).
 
 Both compare a query traversal with a reference traversal (references first, as in the
-seed paper's protocol) through :mod:`slamfront.core.seqslam`. ``seqslam`` fills the whole
+Rodrigues 2019's protocol) through :mod:`slamfront.core.seqslam`. ``seqslam`` fills the whole
 difference matrix; ``seqslam_fast`` only the k nearest references of each query, and
 scores only the trajectories that pass through them.
 """
@@ -31,7 +31,7 @@ from slamfront.messages import Features, LoopResult
 class SeqSlamConfig(PluginConfig):
     """Parameters shared by both variants; defaults are OpenSeqSLAM 2013's."""
 
-    ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, seed paper 40); even")
+    ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, Rodrigues 2019: 40); even")
     vmin: float = Field(0.8, gt=0, description="slowest trajectory, reference frames per query frame")
     vmax: float = Field(1.2, gt=0, description="fastest trajectory")
     contrast_window: int = Field(10, ge=2, description="R: rows of the local contrast enhancement window")

@@ -1,5 +1,5 @@
 """The ``hierarchical`` place map: places of similar consecutive frames, a topological map
-over them, and exact nearest-neighbour search of place representatives (seed 000 §3.1).
+over them, and exact nearest-neighbour search of place representatives (Rodrigues 2019 §3.1).
 
 Places (§3.1.2): a frame joins the last place ``P_l`` when ``S(R(P_l), g_t) >= nu``,
 where ``R(P)`` is the place's first descriptor (its representative) and
@@ -99,7 +99,7 @@ class Place:
 
 
 class HierarchicalPlaceMap(PlaceMap):
-    """Places of similar consecutive frames in a topological map with exact VP-tree search (seed 000 §3.1).
+    """Places of similar consecutive frames in a topological map with exact VP-tree search (Rodrigues 2019 §3.1).
 
     A frame joins the current place while its similarity to the place's first
     descriptor stays >= ``similarity_threshold`` (nu). Places of ``auto_commit``
@@ -123,7 +123,7 @@ class HierarchicalPlaceMap(PlaceMap):
         )
         search: Literal["vptree", "brute_force"] = Field(
             "vptree", description="how representatives are searched; both are exact and give the same answer "
-            "(the VP-tree of the seed pays off for low intrinsic dimension, see benchmarks/results/vptree.md)",
+            "(the VP-tree of Rodrigues 2019 pays off for low intrinsic dimension, see benchmarks/results/vptree.md)",
         )
         leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
 

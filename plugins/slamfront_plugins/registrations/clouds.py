@@ -1,4 +1,4 @@
-"""One RGB-D frame to a registration-ready cloud (seed 002, 4.2.2.2, first steps).
+"""One RGB-D frame to a registration-ready cloud (Barbosa 2017, 4.2.2.2, first steps).
 
 Back-projection with the frame's intrinsics and truncation, statistical outlier removal,
 voxel grid, normals oriented to the viewpoint (the camera centre), then FPFH (Open3D) or
@@ -159,7 +159,7 @@ def prepare_points(
 def _estimate_normals(cloud: o3d.geometry.PointCloud, config: FeatureIcpConfig, viewpoint: np.ndarray) -> None:
     radius = config.normal_radius_voxels * config.voxel_size_m
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=config.normal_max_nn))
-    # normals face the viewpoint: n . (v - p) > 0 (seed 002, eq. 4.7)
+    # normals face the viewpoint: n . (v - p) > 0 (Barbosa 2017, eq. 4.7)
     cloud.orient_normals_towards_camera_location(np.asarray(viewpoint, dtype=np.float64))
 
 

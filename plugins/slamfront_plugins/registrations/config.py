@@ -1,4 +1,4 @@
-"""Parameters of the ``feature_icp`` registration (seed 002, section 4.2.2.2).
+"""Parameters of the ``feature_icp`` registration (Barbosa 2017, section 4.2.2.2).
 
 Radii and the initial-alignment distances are multiples of the voxel size, so one
 number (``voxel_size_m``) rescales the whole pipeline to another scene size; the ICP

@@ -1,4 +1,4 @@
-"""The ``feature_icp`` registration: RGB-D frames to one global 3-D model (seed 002, 4.2)."""
+"""The ``feature_icp`` registration: RGB-D frames to one global 3-D model (Barbosa 2017, 4.2)."""
 
 from __future__ import annotations
 

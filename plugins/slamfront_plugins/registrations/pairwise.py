@@ -1,6 +1,6 @@
 """Aligning one cloud to another: initial alignment, ICP, a quality check and fallbacks.
 
-The initial alignment plays SAC-IA's role (seed 002, 2.2.3.4): RANSAC on feature
+The initial alignment plays SAC-IA's role (Barbosa 2017, 2.2.3.4): RANSAC on feature
 correspondences (Open3D's, with the edge-length and distance pre-checks that reject
 bad samples early), or Fast Global Registration. ICP then refines it with the paper's
 stopping rules. An alignment whose inlier fraction (fitness) is too small, whose inlier

@@ -8,7 +8,7 @@ shows. :class:`PairedTraversals` turns a layout into a run:
 - frames: every reference frame first (traversal ``reference``, frame indices
   0..R-1), then every query frame (``query``, R..R+Q-1), read lazily;
 - ``start`` / ``step`` / ``limit`` select the same positions in both traversals;
-- the experiments of seed 000 §4.4 on the reference: ``replaced`` swaps a block for
+- the experiments of Rodrigues 2019 §4.4 on the reference: ``replaced`` swaps a block for
   frames of another dataset (those queries then have no true match), ``reordered``
   moves a block to the end (the route is visited in another order);
 - ground truth by place (:meth:`LoopGroundTruth.from_places`): a match is correct when
@@ -99,7 +99,7 @@ class PairedTraversals(Source):
         step: int = Field(1, ge=1, description="use every step-th position")
         limit: int | None = Field(None, ge=1, description="at most this many positions per traversal")
         experiment: Experiment = Field(
-            "original", description="seed 000 §4.4: original (1), replaced (2: a reference block from another "
+            "original", description="Rodrigues 2019 §4.4: original (1), replaced (2: a reference block from another "
             "dataset) or reordered (3: a reference block moved to the end)"
         )
         block_start: int | None = Field(

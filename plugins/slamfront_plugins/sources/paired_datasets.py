@@ -1,7 +1,7 @@
 """The paired-traversal datasets: Nordland, Gardens Point Walking, UofA, VPR-Bench, two folders.
 
 Each class only reads its dataset's folder layout into a
-:class:`~slamfront_plugins.sources.paired.PairedLayout`; selection, the seed's
+:class:`~slamfront_plugins.sources.paired.PairedLayout`; selection, Rodrigues 2019's
 experiments, frames and ground truth are shared (:mod:`.paired`).
 """
 
@@ -134,7 +134,7 @@ class GardensPoint(TraversalFolders):
     """Gardens Point Walking (QUT campus): two day walks and one night walk, frame-aligned.
 
     Reads ``<root>/{day_left,day_right,night_right}/Image*.jpg`` (200 each); frame i of
-    every walk is the same place. Seed 000 uses reference day_left or day_right, query
+    every walk is the same place. Rodrigues 2019 uses reference day_left or day_right, query
     night_right.
     """
 

@@ -6,7 +6,7 @@ window grid, shop front, signs, brick-like noise. Side-street gaps in the outer 
 a second row of buildings further away. The camera drives along the street; a second
 traversal of the same route can differ in illumination (day, dusk, night with lit
 windows), viewpoint (a lateral offset and a yaw offset) and moving occluders (people
-and vehicles as upright cylinders). Everything is a pure function of the seed and the
+and vehicles as upright cylinders). Everything is a pure function of the world seed and the
 frame's parameters, so frames are deterministic and can be rendered in any order.
 
 World frame: x east, y north, z up, metres. Camera frame: OpenCV (x right, y down,
