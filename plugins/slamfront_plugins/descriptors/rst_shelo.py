@@ -105,7 +105,7 @@ def _block_geometry(
     for the 8 (row, column, bin) corners of every cell's vote, in the order the votes are
     added, the flat histogram index of its block, its row and column weights and the
     bin step (0 or 1). Shapes (8, cells_y, cells_x); read-only."""
-    blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
+    blocks_x = cells_x // block_x
     if spatial_soft:  # cell centre in block units, block centres at integers
         row = (np.arange(cells_y) + 0.5) / block_y - 0.5
         col = (np.arange(cells_x) + 0.5) / block_x - 0.5
