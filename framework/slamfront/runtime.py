@@ -14,8 +14,6 @@ written, :mod:`slamfront.interrupts`). Its last ``/log`` line says how the run e
 
 from __future__ import annotations
 
-import json
-import os
 import platform
 import time
 from collections.abc import Iterable, Sequence
@@ -54,6 +52,7 @@ from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageSt
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.markdown import write_report
+from slamfront.report.metrics_file import write_json_atomically
 
 __all__ = [
     "CALIBRATION_TOPIC", "DEPTH_TOPIC", "FRAMES_TOPIC", "GROUND_TRUTH_TOPIC", "IMAGE_TOPIC", "LOG_TOPIC",
@@ -369,30 +368,3 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
         "`foxglove/slamfront-layout.json`."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
-
-
-def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
-    """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
-
-
-def _finite(value: Any) -> Any:
-    """NaN and infinities become null: metrics.json must be strict JSON for other tools."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {type(value).__name__} to metrics.json")

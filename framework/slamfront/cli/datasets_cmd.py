@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from slamfront.data import cache_root, data_root
-from slamfront.datasets import DatasetDownload, fetch
 from slamfront.errors import DataError
-from slamfront.registry import PluginRegistry
+
+if TYPE_CHECKING:
+    from slamfront.datasets import DatasetDownload
+    from slamfront.registry import PluginRegistry
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -30,6 +32,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, DatasetDownload]]:
     """Every dataset the installed sources declare: ``{name: (source plugin, download)}``."""
+    from slamfront.registry import PluginRegistry
+
     found: dict[str, tuple[str, DatasetDownload]] = {}
     for info in (registry or PluginRegistry()).all("source"):
         for spec in getattr(info.cls, "downloads", ()):
@@ -38,6 +42,9 @@ def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, Da
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.data import cache_root, data_root
+    from slamfront.datasets import fetch
+
     datasets = catalogue()
     cache = args.cache or cache_root()
     if args.action == "list":

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LogSummary, log_file, read_attachment, summarize
-from slamfront.mcaplog.validate import validate_log
+
+if TYPE_CHECKING:
+    from slamfront.mcaplog.reader import LogSummary
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -26,6 +28,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.reader import log_file, read_attachment, summarize
+    from slamfront.mcaplog.validate import validate_log
+
     path = log_file(args.log)
     if args.recipe:
         print(read_attachment(path, "recipe.yaml").decode(), end="")

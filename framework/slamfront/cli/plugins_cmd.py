@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from slamfront.plugin import KINDS
-from slamfront.registry import PluginRegistry
+from slamfront.kinds import KINDS
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -21,6 +20,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.registry import PluginRegistry
+
     registry = PluginRegistry(modules=args.plugin_module)
     infos = registry.all(args.kind)
     if args.json:

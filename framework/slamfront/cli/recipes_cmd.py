@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from slamfront.recipe import read_recipe_dict, recipes_dir
-
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
@@ -15,6 +13,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.recipe import read_recipe_dict, recipes_dir
+
     paths = sorted(recipes_dir().glob("*.yaml"))
     width = max((len(p.stem) for p in paths), default=4)
     for path in paths:

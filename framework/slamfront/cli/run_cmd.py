@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from slamfront.recipe import build_pipeline, load_recipe
-from slamfront.runtime import RunResult, run_pipeline
+if TYPE_CHECKING:
+    from slamfront.runtime import RunResult
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -29,6 +30,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.recipe import build_pipeline, load_recipe
+    from slamfront.runtime import run_pipeline
+
     recipe, path = load_recipe(args.recipe, args.overrides)
     if args.plugin_module:
         recipe = recipe.model_copy(update={"plugin_modules": [*recipe.plugin_modules, *args.plugin_module]})

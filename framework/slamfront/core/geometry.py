@@ -33,10 +33,20 @@ def pose_from_quaternion(translation: np.ndarray, quaternion_xyzw: np.ndarray) -
     return pose
 
 
-def poses_from_quaternions(translations: np.ndarray, quaternions_xyzw: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) transforms from (N, 3) translations and (N, 4) quaternions x, y, z, w."""
+def poses_from_quaternions(
+    translations: np.ndarray, quaternions_xyzw: np.ndarray, as_single: bool = False
+) -> np.ndarray:
+    """(N, 4, 4) transforms from (N, 3) translations and (N, 4) quaternions x, y, z, w.
+
+    :param as_single: normalise each quaternion as :func:`pose_from_quaternion` does a lone
+        one, so the values are the same bits (a batched norm rounds differently in the
+        last bit); a Python loop over the rows, ~1 us each.
+    """
     q = np.asarray(quaternions_xyzw, dtype=np.float64)
-    norms = np.linalg.norm(q, axis=1, keepdims=True)
+    if as_single:
+        norms = np.array([np.linalg.norm(row) for row in q]).reshape(-1, 1)
+    else:
+        norms = np.linalg.norm(q, axis=1, keepdims=True)
     if np.any(~np.isfinite(norms)) or np.any(norms < 1e-12):
         raise CoreError("a quaternion is zero or not finite")
     poses = np.tile(np.eye(4), (len(q), 1, 1))
