@@ -306,3 +306,21 @@ def test_difference_engine_gives_the_numpy_bits() -> None:
         floats_r, floats_q = refs.astype(np.float32) / 7, queries.astype(np.float32) / 7
         numpy_sums = np.abs(floats_r[:, None, :] - floats_q[None, :, :]).sum(axis=2, dtype=np.float32)
         assert difference_columns(floats_r, floats_q).tobytes() == (numpy_sums / np.float32(pixels)).tobytes()
+
+
+def test_thumbnail_resize_low_passes_before_shrinking_as_matlab_imresize() -> None:
+
+    from slamfront.core.thumbnail import imresize, resize_weights
+    from slamfront_plugins.descriptors.seqslam_thumbnail import SeqSlamThumbnail
+
+    stripes = np.tile(np.array([0, 255], dtype=np.uint8), (32, 32))  # 64 columns alternating black/white
+    shrunk = imresize(stripes, 32, 32)
+    assert shrunk.shape == (32, 32)
+    assert np.all(np.abs(shrunk[:, 2:-2].astype(int) - 128) <= 1)  # averaged to grey, not aliased (edges: mirrored)
+    weights = resize_weights(64, 32)
+    assert np.allclose(weights.sum(axis=1), 1.0) and np.allclose(weights[6][2:], weights[5][:-2])
+    assert np.unique(imresize(np.full((32, 64), 77, np.uint8), 32, 32)).tolist() == [77]
+    stack = np.stack([stripes, 255 - stripes])
+    assert np.array_equal(imresize(stack, 16, 20)[1], imresize(255 - stripes, 16, 20))  # batched = one by one
+    thumbnail = SeqSlamThumbnail(SeqSlamThumbnail.Config(width=32, height=32))
+    assert thumbnail.describe(np.dstack([stripes] * 3)).shape == (1024,)
