@@ -68,6 +68,10 @@ class RunResult:
     metrics_path: Path
     report_path: Path
     metrics: dict[str, Any]
+    phase_seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time of the run's phases after setup: ``frame_loop`` (frames and the stages'
+    ``finish``, logging included), ``evaluation`` (metrics and their plots), ``log_close``
+    and ``report`` (metrics.json, report.md)."""
 
 
 @dataclass
@@ -227,6 +231,7 @@ def execute_run(
     scene = SceneLogger(recipe.log.scene_every) if recipe.log.scene else None
     observers = _Observers([*evaluations, *([scene] if scene else [])])
     timer, clock = StageTimer(), LogClock()
+    phases: dict[str, float] = {}
     statistics: dict[str, dict[str, Any]] = {}
     n_frames, last_stamp = 0, 0
     ending = ("error", "run failed before the first frame")
@@ -294,6 +299,7 @@ def execute_run(
                 with clock:
                     log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
             seconds = time.perf_counter() - started
+            phases["frame_loop"] = seconds
             ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
         except KeyboardInterrupt as exc:
             ending = ("warning", f"run interrupted ({exc or 'SIGINT'}) after {n_frames} frames")
@@ -323,19 +329,26 @@ def execute_run(
                 metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
         names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
         context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
+        tick = time.perf_counter()
         sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
+        phases["evaluation"] = time.perf_counter() - tick
         for section in sections:
             metrics.update(section.metrics)
         metrics["timing"] = timer.summary()
+        metrics["evaluation_seconds"] = phases["evaluation"]
+        tick = time.perf_counter()
         with clock:
             log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
             log.close()
 
+    phases["log_close"] = time.perf_counter() - tick
+    tick = time.perf_counter()
     metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
     sections.append(_log_section(metrics))
     metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+    phases["report"] = time.perf_counter() - tick
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, phases)
 
 
 def _log_statistics(

@@ -21,7 +21,6 @@ from typing import Any, Literal
 import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from tqdm import tqdm
 
 from slamfront.core import geometry
 from slamfront.core.errors import CoreError
@@ -459,6 +458,8 @@ def _isam2_run(graph: PoseGraph, options: SolverOptions, factorization: Literal[
     session = Isam2Session(graph.dim, options, factorization)
     session.name = graph.name
     inverse_measurements = geometry.invert(graph.measurements)
+    from tqdm import tqdm  # only the incremental mode shows progress
+
     progress = tqdm(order.tolist(), desc="iSAM2", unit="vertex", leave=False, disable=None)  # shown on a terminal
     for when, vertex in enumerate(progress):
         key = int(graph.ids[vertex])
