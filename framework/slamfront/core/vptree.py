@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import Metric, pairwise, smallest, to_one
+from slamfront.core.distances import Metric, smallest, to_one
 from slamfront.core.errors import CoreError
 
 _SLACK = 1e-5
@@ -280,33 +280,33 @@ def brute_force_knn(
     return (order + lo).astype(np.int64), distances[order].astype(np.float32)
 
 
-def intrinsic_dimension(rows: np.ndarray, metric: Metric = "l1", sample: int = 500) -> float:
-    """Chavez et al. 2001's intrinsic dimensionality ``rho = mean^2 / (2 var)`` of the
-    distances between ``sample`` evenly spaced rows of ``rows`` (M, D).
-
-    The larger rho, the more concentrated the distances, and the less a metric tree
-    can prune: on the place search benchmark, unit-L1 descriptors on a 2-D manifold
-    have rho ~ 10, on an 8-D one ~ 39, and Nordland's RST-SHelo reference ~ 16.
-    """
-    picked = rows[np.unique(np.linspace(0, len(rows) - 1, min(sample, len(rows))).astype(int))]
-    if len(picked) < 3:
-        return float("inf")
-    distances = pairwise(picked, picked, metric)[np.triu_indices(len(picked), 1)].astype(np.float64)
-    variance = distances.var()
-    return float(distances.mean() ** 2 / (2 * variance)) if variance > 0 else float("inf")
-
-
 VPTREE_MIN_PLACES = 10_000
 """Below this many points brute force wins whatever the data (benchmarks/results/vptree.md:
 the tree is 4-8x slower at 1,000 points even at intrinsic dimension 2)."""
 
-VPTREE_MAX_RHO = 12.0
-"""Above this intrinsic dimensionality (:func:`intrinsic_dimension`) the tree computes most
-distances anyway (Nordland RST-SHelo, rho 16: 96 %) and brute force wins; at rho ~ 10
-(2-D manifold) the tree is 2-3x faster from 10,000 points and 170x at 100,000."""
+VPTREE_MAX_FRACTION = 0.1
+"""The tree pays when a search computes at most this share of the distances brute force
+computes (benchmarks/results/vptree.md: at 2.5 % it is 2-3x faster than brute force,
+at 96 % -- Nordland's RST-SHelo -- 6x slower: each of its distances costs more)."""
 
 
-def vptree_pays(rows: np.ndarray, metric: Metric = "l1") -> bool:
-    """Whether an exact VP-tree search beats brute force over ``rows`` (M, D): the
-    benchmark-backed rule ``M >= VPTREE_MIN_PLACES and rho <= VPTREE_MAX_RHO``."""
-    return len(rows) >= VPTREE_MIN_PLACES and intrinsic_dimension(rows, metric) <= VPTREE_MAX_RHO
+def vptree_pays(
+    rows: np.ndarray, metric: Metric = "l1", leaf_size: int = 32, k: int = 10, probes: int = 20
+) -> VPTree | None:
+    """A VP-tree over ``rows`` (M, D) if it beats brute force on them, else None.
+
+    The rule is measured on the data, not guessed: with at least
+    :data:`VPTREE_MIN_PLACES` rows, a tree is built and ``probes`` evenly spaced rows are
+    searched (``k`` nearest); it is kept when it computed at most
+    :data:`VPTREE_MAX_FRACTION` of the distances brute force would. Counting distances
+    (not timing) keeps the choice deterministic; the answers are the same either way.
+    """
+    if len(rows) < VPTREE_MIN_PLACES:
+        return None
+    tree = VPTree(rows.shape[1], metric, leaf_size=leaf_size)
+    tree.extend(rows)
+    picked = np.unique(np.linspace(0, len(rows) - 1, probes).astype(int))
+    tree.distance_calls = 0
+    for row in picked:
+        tree.knn(rows[row], k)
+    return tree if tree.distance_calls <= VPTREE_MAX_FRACTION * len(picked) * len(rows) else None

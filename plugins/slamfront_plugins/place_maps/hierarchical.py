@@ -124,8 +124,9 @@ class HierarchicalPlaceMap(PlaceMap):
         search: Literal["auto", "vptree", "brute_force"] = Field(
             "auto", description="how representatives are searched; all are exact and give the same answer. "
             "The VP-tree of Rodrigues 2019 pays off only for large maps of low intrinsic dimension "
-            "(benchmarks/results/vptree.md); auto searches by brute force and moves to a VP-tree when the map "
-            "reaches 10,000 places (and each doubling after) if their intrinsic dimension is low enough",
+            "(benchmarks/results/vptree.md); auto searches by brute force and, when the map reaches 10,000 "
+            "places (and each doubling after), moves to a VP-tree if one computes at most 10 % of the distances "
+            "on them",
         )
         leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
 
@@ -273,15 +274,13 @@ class HierarchicalPlaceMap(PlaceMap):
         return self._tree.knn(vector, k, lo, hi)
 
     def _maybe_grow_tree(self) -> None:
-        """``search: auto``: at 10,000 map places and each doubling, build a VP-tree over the
-        representatives if the benchmark-backed rule (:func:`vptree_pays`) says it pays."""
+        """``search: auto``: at 10,000 map places and each doubling, keep a VP-tree over the
+        representatives if it computes few enough distances on them (:func:`vptree_pays`)."""
         n = len(self._representatives)  # type: ignore[arg-type]
-        if n < self._next_search_check:
+        if n < self._next_search_check or self._metric == "cosine":
             return
         self._next_search_check = 2 * n
-        if self._metric != "cosine" and vptree_pays(self._representatives.view, self._metric):  # type: ignore[union-attr,arg-type]
-            self._tree = VPTree(self._representatives.view.shape[1], self._metric, leaf_size=self.config.leaf_size)  # type: ignore[union-attr,arg-type]
-            self._tree.extend(self._representatives.view)  # type: ignore[union-attr]
+        self._tree = vptree_pays(self._representatives.view, self._metric, self.config.leaf_size)  # type: ignore[union-attr,arg-type]
 
     def statistics(self) -> dict[str, float | int]:
         counts: dict[str, int] = {}
