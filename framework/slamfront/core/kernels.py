@@ -11,7 +11,7 @@ operation, so answers do not change by a bit:
 
 - uint8 L1 sums are exact integers (order does not matter);
 - float32 L1 sums follow NumPy's pairwise summation of a contiguous row
-  (:func:`pairwise_sum`: 8 running partial sums, combined as a fixed tree, halves of
+  (:func:`slamfront.core.compiled_kernels.pairwise_sum`: 8 running partial sums, combined as a fixed tree, halves of
   blocks above 128 values), which is what ``np.abs(a - b).sum(-1)`` computes;
 - a trajectory swept over every start row adds its ``ds + 1`` entries one after the
   other from 0 (as ``cost += column`` did); one gathered for a few start rows sums them
