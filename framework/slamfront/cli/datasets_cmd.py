@@ -9,6 +9,7 @@ from slamfront.data import cache_root, data_root
 from slamfront.datasets import DatasetDownload, fetch
 from slamfront.errors import DataError
 from slamfront.registry import PluginRegistry
+from slamfront.suggest import did_you_mean
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -20,7 +21,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "resumable, checksum) into $SLAMFRONT_CACHE or ~/.cache/slamfront and extracts it there."
         ),
     )
-    parser.add_argument("action", nargs="?", choices=("list", "download", "path"), default="list")
+    parser.add_argument(
+        "action", nargs="?", choices=("list", "download", "path"), default="list",
+        help="list: every dataset and whether it is here (default); download NAME: fetch it into the "
+        "cache; path NAME: print the folder a source reads it from",
+    )
     parser.add_argument("name", nargs="?", help="dataset name (download, path)")
     parser.add_argument("--url", help="download from this URL instead (a mirror, or file:///path/to/archive)")
     parser.add_argument("--cache", type=Path, help="cache folder (default: $SLAMFRONT_CACHE or ~/.cache/slamfront)")
@@ -55,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.name:
         raise DataError(f"`slamfront datasets {args.action}` needs a dataset name: {', '.join(sorted(datasets))}")
     if args.name not in datasets:
-        raise DataError(f"unknown dataset {args.name!r}; known: {', '.join(sorted(datasets)) or 'none'}")
+        raise DataError(f"unknown dataset {args.name!r}; {did_you_mean(args.name, datasets, 'datasets')}")
     source, spec = datasets[args.name]
     if args.action == "path":
         print(spec.folder(cache))
