@@ -153,8 +153,16 @@ def _fetch_files(
         advance(file.size)
 
     with ThreadPoolExecutor(max_workers=PARALLEL) as pool:
-        for future in [pool.submit(one, file) for file in todo]:
-            future.result()  # the first failure is raised; the files already done stay
+        futures = [pool.submit(one, file) for file in todo]
+        try:
+            for future in futures:
+                future.result()
+        except BaseException:
+            # the first failure stops the rest (offline, each would fail in turn); the
+            # files already fetched stay, and the next call fetches only the others
+            for future in futures:
+                future.cancel()
+            raise
 
 
 def _fetch_from_archive(
