@@ -199,7 +199,7 @@ def _serve_copy(dataset: PinnedDataset, shared_data: Path, prefix: str = "/mirro
     return served
 
 
-def test_the_manifest_pins_every_file_of_the_data_root(shared_data: Path) -> None:
+def test_the_data_root_holds_every_pinned_file_unchanged(shared_data: Path) -> None:
     datasets = load_manifest()
     assert {"nordland", "loop10", "redwood_sample", "posegraphs_se_sync"} <= {d.name for d in datasets}
     for dataset in datasets:
