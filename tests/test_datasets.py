@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from slamfront import DataError, manifest
+from slamfront.cli import datasets_cmd
 from slamfront.datasets import COMPLETE_MARKER, DatasetDownload, fetch
 from slamfront.manifest import PinnedDataset, fetch_dataset, load_manifest
 from slamfront.recipe import recipes_dir
@@ -294,3 +295,13 @@ def test_datasets_path_without_a_name_is_the_data_root(cli, tmp_path: Path, monk
     assert code == 0 and out.strip() == str(tmp_path.resolve())
     code, _, err = cli("datasets", "fetch", "nordlnd")
     assert code == 2 and "unknown pinned dataset 'nordlnd'" in err
+
+
+def test_a_data_folder_beside_the_checkout_is_never_written(cli, tmp_path: Path, shared_data: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(manifest, "MANIFEST", _manifest_file(tmp_path, [_pinned(shared_data, "fr1_gt_vs_est", 2)]))
+    monkeypatch.setattr(datasets_cmd, "data_root", lambda: tmp_path / "shared" / "data")
+    monkeypatch.setattr(datasets_cmd, "download_root", lambda: tmp_path / "user")
+    code, _, err = cli("datasets", "fetch", "--for-tests")
+    assert code == 2 and "2 pinned files are missing or differ (fr1_gt_vs_est)" in err and "SLAMFRONT_DATA=DIR" in err
+    assert not (tmp_path / "shared").exists() and not (tmp_path / "user").exists()

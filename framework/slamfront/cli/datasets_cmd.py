@@ -16,7 +16,7 @@ from pathlib import Path
 from slamfront.data import DATA_ENV, data_root, download_root, user_data_dir
 from slamfront.datasets import DatasetDownload, UnreachableError, fetch
 from slamfront.errors import DataError
-from slamfront.manifest import MIRROR_ENV, PinnedDataset, fetch_dataset, load_manifest
+from slamfront.manifest import MIRROR_ENV, PinnedDataset, PinnedFile, fetch_dataset, load_manifest
 from slamfront.registry import PluginRegistry
 
 
@@ -133,7 +133,8 @@ def _fetch(args: argparse.Namespace) -> int:
 
 
 def _fetch_each(
-    todo: list[PinnedDataset], damaged: dict, root: Path, mirror: str | None, progress: bool | None
+    todo: list[PinnedDataset], damaged: dict[str, list[PinnedFile]], root: Path, mirror: str | None,
+    progress: bool | None,
 ) -> list[str]:
     """Fetch each dataset; one line on stderr for each that fails. Once a host is unreachable
     (offline), the rest are listed without trying, so offline costs no time-outs."""
@@ -143,7 +144,7 @@ def _fetch_each(
         missing = damaged[dataset.name]
         where = mirror or dataset.origin
         line = (f"{dataset.name}: {len(missing)} of {len(dataset.files)} files ({sum(f.size for f in missing) / 1e6:.1f} MB) "
-                f"missing in {root / dataset.folder}; get them from {where}")
+                f"missing or damaged in {root / dataset.folder}; get them from {where}")
         if offline is not None:
             print(f"{line} ({offline})", file=sys.stderr)
             failed.append(dataset.name)
@@ -151,7 +152,8 @@ def _fetch_each(
         try:
             fetch_dataset(dataset, root, mirror, progress=progress)
         except UnreachableError as exc:
-            offline = f"unreachable: {exc.__cause__ and getattr(exc.__cause__, 'reason', exc.__cause__) or exc}"
+            cause = exc.__cause__
+            offline = f"unreachable: {getattr(cause, 'reason', cause) or exc}"
             print(f"{line} ({offline})", file=sys.stderr)
             failed.append(dataset.name)
         except DataError as exc:
