@@ -26,11 +26,11 @@ from slamfront.cli import (
     optimize_cmd,
     outliers_cmd,
     plugins_cmd,
-    recipes_cmd,
     recover_cmd,
     replay_cmd,
     retrieval_cmd,
     run_cmd,
+    shipped_cmd,
     sweep_cmd,
 )
 from slamfront.errors import SlamfrontError, run_failure_of
@@ -47,7 +47,7 @@ COMMANDS = (
     inspect_cmd,
     diff_cmd,
     recover_cmd,
-    recipes_cmd,
+    shipped_cmd,
     datasets_cmd,
     optimize_cmd,
     outliers_cmd,
