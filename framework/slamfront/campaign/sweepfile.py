@@ -143,7 +143,7 @@ def read_sweep(path: Path) -> Sweep:
     try:
         return Sweep.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(f"{path}: {_format_validation(exc, '').replace('Value error, ', '')}") from exc
+        raise RecipeError(f"{path}: {_format_validation(exc, '', Sweep).replace('Value error, ', '')}") from exc
 
 
 def resolve_recipe(sweep_path: Path, field: str, recipe: str) -> Path:

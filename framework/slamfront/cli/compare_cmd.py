@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from slamfront.campaign import LocalBackend
+from slamfront.cli.completion import complete_recipes
 from slamfront.compare import compare
 
 
@@ -15,11 +16,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="run several loop-closure recipes through one harness and compare them",
         description=(
             "Run each recipe (a campaign: parallel, resumable, each run with its own log in DIR/runs/) "
-            "and write DIR/comparison.md: recall at 100%% precision and AUC-PR (zeta 3 and 1), search "
+            "and write DIR/comparison.md: recall at 100 % precision and AUC-PR (zeta 3 and 1), search "
             "space and speed per method, all PR curves on one plot (pr_all.png), each method's match plot."
         ),
     )
-    parser.add_argument("recipes", nargs="+", help="recipe files or shipped recipe names")
+    recipe_arg = parser.add_argument("recipes", nargs="+", help="recipe files or shipped recipe names")
+    recipe_arg.completer = complete_recipes  # type: ignore[attr-defined]
     parser.add_argument("-o", "--out", type=Path, default=Path("logs/compare"), help="output folder")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override applied to every recipe (repeatable)")

@@ -18,6 +18,7 @@ from slamfront.datasets import DatasetDownload, UnreachableError, fetch
 from slamfront.errors import DataError
 from slamfront.manifest import MIRROR_ENV, PinnedDataset, PinnedFile, fetch_dataset, load_manifest
 from slamfront.registry import PluginRegistry
+from slamfront.suggest import did_you_mean
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -33,7 +34,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             f"downloads go to ${DATA_ENV}, else {user_data_dir()}."
         ),
     )
-    parser.add_argument("action", nargs="?", choices=("list", "path", "download", "fetch"), default="list")
+    parser.add_argument(
+        "action", nargs="?", choices=("list", "path", "download", "fetch"), default="list",
+        help="list: every dataset and whether it is here (default); path [NAME]: print the data root, or "
+        "where NAME is read from; download NAME: fetch a source's dataset; fetch --for-tests: fetch the "
+        "pinned datasets the tests read",
+    )
     parser.add_argument("names", nargs="*", metavar="NAME", help="dataset name(s)")
     parser.add_argument("--for-tests", action="store_true", help="fetch: every pinned dataset the tests read")
     parser.add_argument(
@@ -68,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"`slamfront datasets {args.action}` needs one dataset name: {', '.join(sorted(datasets))}")
     name = args.names[0]
     if name not in datasets:
-        raise DataError(f"unknown dataset {name!r}; known: {', '.join(sorted(datasets)) or 'none'}")
+        raise DataError(f"unknown dataset {name!r}; {did_you_mean(name, datasets, 'datasets')}")
     source, spec = datasets[name]
     if args.action == "path":
         shared = data_root() / name

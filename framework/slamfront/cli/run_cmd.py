@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slamfront.cli.completion import complete_overrides, complete_recipes
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import RunResult, run_pipeline
 
@@ -15,12 +16,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="run a recipe: writes run.mcap, metrics.json and report.md",
         description="Run a recipe. Writes DIR/run.mcap, DIR/metrics.json, DIR/report.md and plots.",
     )
-    parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
+    recipe_arg = parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
+    recipe_arg.completer = complete_recipes  # type: ignore[attr-defined]
     parser.add_argument("-o", "--out", type=Path, help="output folder (default: logs/<recipe name>/)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-        help="override a recipe field, e.g. --set loop_detector.params.threshold=0.3 (repeatable)",
-    )
+        help="override a recipe field, e.g. --set loop_detector.params.threshold=0.3 (repeatable); "
+        "--set STAGE.plugin=X starts X from its own defaults",
+    ).completer = complete_overrides  # type: ignore[attr-defined]
     parser.add_argument("-p", "--plugin-module", action="append", default=[], metavar="MODULE",
                         help="register an extra plugin module (importable name; repeatable)")
     parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames (a quick smoke run)")
