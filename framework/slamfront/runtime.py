@@ -53,6 +53,7 @@ from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
+from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
 
 __all__ = [
@@ -69,6 +70,8 @@ class RunResult:
     metrics_path: Path
     report_path: Path
     metrics: dict[str, Any]
+    html_path: Path | None = None
+    """``report.html``: the report as one self-contained page (plots inlined)."""
 
 
 @dataclass
@@ -333,10 +336,11 @@ def execute_run(
             log.close()
 
     metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-    sections.append(_log_section(metrics))
+    sections.append(_log_section(metrics, foxglove.layout_for(set(pipeline.plugins))))
     metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+    html_path = write_html(report_path)
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path)
 
 
 def _log_statistics(
@@ -354,7 +358,7 @@ def _log_statistics(
     }
 
 
-def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
+def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     rows = [
         ("size", f"{metrics['log_bytes'] / 1e6:.2f} MB ({metrics['log_bytes_per_frame'] / 1024:.1f} KiB per frame)"),
         ("messages", str(metrics["log_messages"])),
@@ -365,8 +369,7 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
         "Writing includes encoding the images, serialising every message, chunk compression "
-        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with "
-        "`foxglove/slamfront-layout.json`."
+        f"and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with `{layout}`."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 
