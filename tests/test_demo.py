@@ -12,13 +12,12 @@ from pathlib import Path
 import pytest
 
 from slamfront.cli import main
-from slamfront.data import checkout_root
 from slamfront.recipe import load_recipe
 from tests.helpers import layout_problems
 
-SMALL = [
-    "--set", "source.params.frames_per_traversal=60", "--set", "source.params.route_length_m=90",
-    "--set", "source.params.image_width=240", "--set", "source.params.image_height=180",
+REPO = Path(__file__).resolve().parents[1]
+SMALL = [  # a shorter street at the demo's 1.5 m per frame and image size
+    "--set", "source.params.frames_per_traversal=80", "--set", "source.params.route_length_m=120",
     "--set", "loop_detector.params.exclude_recent_places=5",
 ]
 
@@ -37,7 +36,7 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str]
 
 
 def test_make_run_runs_the_demo_recipe() -> None:
-    makefile = (checkout_root() / "Makefile").read_text()
+    makefile = (REPO / "Makefile").read_text()
     assert re.search(r"^run: setup\n\t\$\(BIN\)/slamfront run demo\b", makefile, re.MULTILINE)
     recipe, _ = load_recipe("demo")
     assert recipe.loop_detector.plugin == "hierarchical_sequence" and recipe.backend.plugin == "gtsam_pose_graph"
@@ -62,18 +61,18 @@ def test_the_demo_prints_ate_before_and_after_and_the_report_page_twice(demo_run
 def test_the_demo_verifies_closures_and_optimises_image_odometry(demo_runs: tuple[Path, list[str]]) -> None:
     out, _ = demo_runs
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["n_loop_constraints_added"] >= 3
+    assert metrics["n_loop_constraints_added"] >= 10
     assert metrics["n_loop_constraints_added_false"] == 0 and metrics["precision_verified"] == 1.0
     assert metrics["ate_rmse_after_m"] < 0.5 * metrics["ate_rmse_before_m"]
     assert metrics["drift_after_m"] < metrics["drift_before_m"]
-    assert metrics["n_odometry_fallbacks"] < 0.5 * metrics["n_frames"]  # PnP placed most frames
+    assert metrics["n_odometry_fallbacks"] < 0.15 * metrics["n_frames"]  # PnP placed most frames
     report = (out / "report.md").read_text()
     for figure in ("trajectory.png", "pr.png", "matches.png", "backend.png"):
         assert (out / figure).is_file() and f"]({figure})" in report
-    assert "foxglove/slamfront-layout.json" in report
+    assert "`slamfront layout slamfront-layout.json`" in report  # the report names the layout to open
 
 
 def test_the_demo_log_opens_with_the_shipped_layout(demo_runs: tuple[Path, list[str]]) -> None:
     out, _ = demo_runs
-    layout = json.loads((checkout_root() / "foxglove" / "slamfront-layout.json").read_text())
+    layout = json.loads((REPO / "foxglove" / "slamfront-layout.json").read_text())
     assert layout_problems(layout, out / "run.mcap") == []  # every tab: loop closure and back end

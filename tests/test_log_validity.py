@@ -8,14 +8,14 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from slamfront.data import checkout_root
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.validate import foxglove_message_types, validate_log
 from slamfront.recipe import build_pipeline, load_recipe, parse_recipe
 from slamfront.runtime import RunResult, run_pipeline
 from tests.helpers import layout_problems, rewrite_log, small_synthetic_recipe
 
-LAYOUT = checkout_root() / "foxglove" / "slamfront-layout.json"
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / "foxglove" / "slamfront-layout.json"
 
 
 
@@ -86,7 +86,7 @@ def test_the_foxglove_layout_shows_topics_the_logs_have(full_log: RunResult) -> 
     plotted = [p["value"] for k, c in layout["configById"].items() if k.startswith("Plot!") for p in c["paths"]]
     assert "/loop_detector/loop_result.confidence" in plotted
     assert {"Loop closure", "Back end"} <= {t["title"] for t in layout["configById"]["Tab!slamfront-tabs"]["tabs"]}
-    readme = (checkout_root() / "README.md").read_text()
+    readme = (REPO / "README.md").read_text()
     assert "foxglove/slamfront-layout.json" in readme
 
 
@@ -100,7 +100,15 @@ def test_localization_and_registration_layouts_show_topics_their_logs_have(
     loaded, path = load_recipe(recipe, [f"source.params.{k}={v}" for k, v in overrides.items()] + ["eval.plots=false"])
     result = run_pipeline(build_pipeline(loaded, str(path)), str(path), tmp_path, progress=False)
     assert layout_problems(json.loads((LAYOUT.parent / layout).read_text()), result.log_path) == []
-    assert f"foxglove/{layout}" in result.report_path.read_text()  # the report names the layout to use
+    assert f"`slamfront layout {layout}`" in result.report_path.read_text()  # the report names the layout to use
+
+
+def test_every_shipped_layout_is_found_by_name(cli) -> None:
+    for layout in sorted(LAYOUT.parent.glob("*.json")):
+        code, out, _ = cli("layout", layout.stem)
+        assert code == 0 and json.loads(Path(out.strip()).read_text()) == json.loads(layout.read_text())
+    code, _, err = cli("layout", "nope")
+    assert code == 2 and "no shipped Foxglove layout named 'nope'" in err and "slamfront-registration.json" in err
 
 
 def test_the_layout_check_notices_a_panel_without_its_topic(full_log: RunResult) -> None:

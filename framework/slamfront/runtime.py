@@ -55,6 +55,7 @@ from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
+from slamfront.resources import layout_for
 
 __all__ = [
     "CALIBRATION_TOPIC", "DEPTH_TOPIC", "FRAMES_TOPIC", "GROUND_TRUTH_TOPIC", "IMAGE_TOPIC", "LOG_TOPIC",
@@ -336,7 +337,7 @@ def execute_run(
             log.close()
 
     metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-    sections.append(_log_section(metrics, foxglove.layout_for(set(pipeline.plugins))))
+    sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
     metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
     report_path = write_report(out_dir, recipe, origin, metrics, sections)
     html_path = write_html(report_path)
@@ -369,7 +370,8 @@ def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
         "Writing includes encoding the images, serialising every message, chunk compression "
-        f"and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with `{layout}`."
+        f"and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with the shipped layout "
+        f"`{layout}` (`slamfront layout {layout}` prints where it is)."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 

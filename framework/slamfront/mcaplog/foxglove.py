@@ -31,19 +31,6 @@ from slamfront.frame import Camera
 MAP_FRAME = "map"
 CAMERA_FRAME = "camera"
 
-LAYOUTS = {
-    "localizer": "foxglove/slamfront-localization.json",
-    "registration": "foxglove/slamfront-registration.json",
-}
-"""The Foxglove layout for runs with these stages; every other run (loop closure, and the
-back end on its second tab) opens with :data:`DEFAULT_LAYOUT`."""
-DEFAULT_LAYOUT = "foxglove/slamfront-layout.json"
-
-
-def layout_for(kinds: set[str]) -> str:
-    """The layout file (relative to the checkout) whose panels show a run with stages ``kinds``."""
-    return next((LAYOUTS[kind] for kind in LAYOUTS if kind in kinds), DEFAULT_LAYOUT)
-
 
 def timestamp(ns: int) -> Timestamp:
     stamp = Timestamp()
