@@ -2,19 +2,20 @@
 # Both create/refresh .venv, install slamfront (pinned by constraints.txt) and the
 # system libraries it needs, then run the demo recipe or the tests. `make test` first
 # checks the real test data in the data root (docs/data.md) and fetches what is missing:
-# nothing when it is all there, one line per missing dataset when offline.
+# nothing when it is all there, one line per missing dataset when offline. The tests also
+# need chromium, to open report.html (installed as root, else the apt command is printed).
 
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.slamfront-installed
 
-.PHONY: run test setup sysdeps bench clean lock
+.PHONY: run test setup sysdeps testdeps bench clean lock
 
 run: setup
-	$(BIN)/slamfront run recipes/demo.yaml
+	$(BIN)/slamfront run demo
 
-test: setup
+test: setup testdeps
 	$(BIN)/slamfront datasets fetch --for-tests
 	$(BIN)/python -m pytest
 
@@ -35,6 +36,10 @@ $(STAMP): pyproject.toml setup.py constraints.txt examples/slamfront-example-plu
 # Open3D's wheel links libusb-1.0; install it when missing (as root), else say how.
 sysdeps:
 	@sh scripts/sysdeps.sh
+
+# The report test opens report.html in Debian's headless chromium.
+testdeps:
+	@sh scripts/sysdeps.sh test
 
 bench: setup
 	for script in benchmarks/bench_*.py; do $(BIN)/python $$script || exit 1; done

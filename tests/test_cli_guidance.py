@@ -168,7 +168,7 @@ def _complete(line: str, tmp_path: Path) -> list[str]:
 def test_shell_completion(tmp_path: Path) -> None:
     assert "run" in _complete("slamfront ru", tmp_path)
     assert "demo" in _complete("slamfront run de", tmp_path)
-    assert _complete("slamfront run demo --set loop_detector.params.thr", tmp_path) == [
+    assert _complete("slamfront run paired_demo --set loop_detector.params.thr", tmp_path) == [
         "loop_detector.params.threshold="
     ]
     assert {"log.images=", "log.image_max_width=", "log.image_format="} <= set(

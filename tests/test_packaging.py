@@ -53,9 +53,9 @@ def test_a_file_in_the_working_directory_wins_over_a_shipped_one(tmp_path: Path,
 
 
 def _frames_reaching_queries() -> int:
-    """A frame count past the middle of the shipped demo's stream: taken from the recipe (its
-    source's length), so it follows the demo if the demo changes."""
-    recipe, path = load_recipe("demo")
+    """A frame count past the middle of the shipped paired demo (the quick one): taken from the
+    recipe (its source's length), so it follows the recipe if it changes."""
+    recipe, path = load_recipe("paired_demo")
     return math.ceil(0.6 * len(build_pipeline(recipe, str(path)).source))
 
 
@@ -109,9 +109,9 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path: Path) -> None:
     listed = {line.split()[0] for line in slamfront("recipes").splitlines()}
     assert listed == {p.stem for p in (REPO / "recipes").glob("*.yaml")}
     n = _frames_reaching_queries()
-    slamfront("run", "demo", "--max-frames", n, "-q")
-    metrics = json.loads((work / "logs" / "demo" / "metrics.json").read_text())
-    assert (work / "logs" / "demo" / "run.mcap").stat().st_size > 0
+    slamfront("run", "paired_demo", "--max-frames", n, "-q")
+    metrics = json.loads((work / "logs" / "paired_demo" / "metrics.json").read_text())
+    assert (work / "logs" / "paired_demo" / "run.mcap").stat().st_size > 0
     assert metrics["n_frames"] == n and metrics["n_queries"] > 0
     for sweep in (REPO / "sweeps").glob("*.yaml"):
         assert f"{sweep.stem}:" in slamfront("sweep", sweep.stem, "--dry-run")

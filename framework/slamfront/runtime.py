@@ -55,7 +55,9 @@ from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
+from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
+from slamfront.resources import layout_for
 
 __all__ = [
     "CALIBRATION_TOPIC", "DEPTH_TOPIC", "FRAMES_TOPIC", "GROUND_TRUTH_TOPIC", "IMAGE_TOPIC", "LOG_TOPIC",
@@ -73,6 +75,8 @@ class RunResult:
     metrics_path: Path
     report_path: Path
     metrics: dict[str, Any]
+    html_path: Path | None = None
+    """``report.html``: the report as one self-contained page (plots inlined)."""
 
 
 @dataclass
@@ -360,14 +364,15 @@ def execute_run(
 
         where = "while writing metrics.json and the report"
         metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-        sections.append(_log_section(metrics))
+        sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
         metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
         report_path = write_report(out_dir, recipe, origin, metrics, sections)
+        html_path = write_html(report_path)
     except BaseException as exc:
         if log_opened:
             note_run_failure(exc, log_path, where)
         raise
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path)
 
 
 def _logger_packages(pipeline: Pipeline) -> set[str]:
@@ -410,7 +415,7 @@ def _log_statistics(
     }
 
 
-def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
+def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     rows = [
         ("size", f"{metrics['log_bytes'] / 1e6:.2f} MB ({metrics['log_bytes_per_frame'] / 1024:.1f} KiB per frame)"),
         ("messages", str(metrics["log_messages"])),
@@ -421,8 +426,8 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
         "Writing includes encoding the images, serialising every message, chunk compression "
-        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with the "
-        "shipped layout (`slamfront layout` prints where it is)."
+        f"and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with the shipped layout "
+        f"`{layout}` (`slamfront layout {layout}` prints where it is)."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 

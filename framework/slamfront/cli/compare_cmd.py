@@ -16,7 +16,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="run several loop-closure recipes through one harness and compare them",
         description=(
             "Run each recipe (a campaign: parallel, resumable, each run with its own log in DIR/runs/) "
-            "and write DIR/comparison.md: recall at 100 % precision and AUC-PR (zeta 3 and 1), search "
+            "and write DIR/comparison.md and DIR/comparison.html (a page linking every run's report): recall at 100 % precision and AUC-PR (zeta 3 and 1), search "
             "space and speed per method, all PR curves on one plot (pr_all.png), each method's match plot."
         ),
     )
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         args.recipes, args.out, LocalBackend(args.workers), args.overrides, max_frames=args.max_frames,
         progress=False if args.quiet else None, force=args.force,
     )
-    print(f"comparison: {result.report_path}")
+    print(f"comparison: {result.report_path.with_suffix('.html')}")
     print(f"results:    {result.campaign.results_csv}")
     failed = result.campaign.count("failed")
     return 1 if failed else 0

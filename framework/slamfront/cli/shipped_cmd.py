@@ -12,7 +12,7 @@ from pathlib import Path
 
 from slamfront.errors import SlamfrontError
 from slamfront.recipe import read_yaml_mapping
-from slamfront.resources import layout_path, shipped_dir, shipped_files
+from slamfront.resources import LAYOUT, layout_path, shipped_dir, shipped_files
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -26,10 +26,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         parser.set_defaults(handler=run_listing, kind=kind, what=what)
     parser = commands.add_parser(
         "layout",
-        help="print where the shipped Foxglove layout is (or copy it)",
-        description="The Foxglove layout for run.mcap (camera image, 3-D map with loop closures, "
-        "confidence and timing plots): in Foxglove, Layouts > Import from file.",
+        help="print where a shipped Foxglove layout is (or copy it)",
+        description="The Foxglove layouts for run.mcap: in Foxglove, Layouts > Import from file. A run's "
+        "report names the one for it: slamfront-layout (loop closure and the back end, a tab each), "
+        "slamfront-localization, slamfront-registration.",
     )
+    parser.add_argument("name", nargs="?", default=LAYOUT, help=f"the layout's name (default: {LAYOUT})")
     parser.add_argument("-o", "--out", type=Path, help="copy the layout to this file instead")
     parser.set_defaults(handler=run_layout)
 
@@ -53,7 +55,7 @@ def run_listing(args: argparse.Namespace) -> int:
 
 
 def run_layout(args: argparse.Namespace) -> int:
-    layout = layout_path()
+    layout = layout_path(args.name)
     if not layout.is_file():
         raise SlamfrontError(f"{layout}: the shipped Foxglove layout is missing; reinstall slamfront")
     if args.out is None:

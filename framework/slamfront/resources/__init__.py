@@ -20,7 +20,9 @@ SUFFIX: dict[Kind, str] = {"recipes": ".yaml", "sweeps": ".yaml", "foxglove": ".
 """The files of each kind that are shipped (the packaging in setup.py ships the same)."""
 
 LAYOUT = "slamfront-layout.json"
-"""The Foxglove layout for ``run.mcap`` (camera image, 3-D map, loop closures, timings)."""
+"""The Foxglove layout for ``run.mcap`` of loop closure and the back end (a tab each)."""
+LAYOUTS_BY_STAGE = {"localizer": "slamfront-localization.json", "registration": "slamfront-registration.json"}
+"""The layout for runs with these stages; every other run opens with :data:`LAYOUT`."""
 
 
 def shipped_dir(kind: Kind) -> Path:
@@ -43,6 +45,19 @@ def shipped_files(kind: Kind) -> list[Path]:
     return sorted(shipped_dir(kind).glob(f"*{SUFFIX[kind]}"))
 
 
-def layout_path() -> Path:
-    """The shipped Foxglove layout file."""
-    return shipped_dir("foxglove") / LAYOUT
+def layout_path(name: str = LAYOUT) -> Path:
+    """A shipped Foxglove layout file, by file name or stem (default: :data:`LAYOUT`).
+
+    :raises SlamfrontError: no shipped layout has that name (the message lists them).
+    """
+    file_name = name if name.endswith(SUFFIX["foxglove"]) else name + SUFFIX["foxglove"]
+    path = shipped_dir("foxglove") / file_name
+    known = [p.name for p in shipped_files("foxglove")]
+    if file_name not in known and known:
+        raise SlamfrontError(f"no shipped Foxglove layout named {name!r}; the layouts are {', '.join(known)}")
+    return path
+
+
+def layout_for(kinds: set[str]) -> str:
+    """The file name of the layout whose panels show a run with the stages ``kinds``."""
+    return next((LAYOUTS_BY_STAGE[kind] for kind in LAYOUTS_BY_STAGE if kind in kinds), LAYOUT)
