@@ -14,11 +14,13 @@ written, :mod:`slamfront.interrupts`). Its last ``/log`` line says how the run e
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
 import platform
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -51,6 +53,7 @@ from slamfront.mcaplog.topics import (
 )
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
+from slamfront.outputs import claim_run_folder
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.markdown import write_report
@@ -69,6 +72,8 @@ class RunResult:
     metrics_path: Path
     report_path: Path
     metrics: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+    """What the user should know about how the run went (e.g. a replay's lost data)."""
 
 
 @dataclass
@@ -213,14 +218,20 @@ def execute_run(
     progress: bool | None = None,
     max_frames: int | None = None,
     metadata: dict[str, dict[str, str]] | None = None,
+    input_files: Sequence[Path] = (),
 ) -> RunResult:
     """Drive ``pipeline``'s stages with the frames of ``feed``; stages of the kinds in
     ``feed.recorded_kinds`` are not called, their logged messages are used instead.
 
+    The log's last ``/log`` line says how the run ended, whatever phase it ended in
+    (streaming, the stages' finish, evaluation and its plots), and it is written last:
+    a run it calls completed has produced everything but the log's own statistics.
+
     :param metadata: extra MCAP metadata records (name -> key/values).
+    :param input_files: files the run reads (a replayed log): never overwritten or removed.
     """
     recipe = pipeline.recipe
-    out_dir.mkdir(parents=True, exist_ok=True)
+    folder = claim_run_folder(out_dir, input_files)
     log_path = out_dir / "run.mcap"
     stages: list[Stage] = pipeline.stages
     recorded = feed.recorded_kinds
@@ -229,114 +240,156 @@ def execute_run(
     observers = _Observers([*evaluations, *([scene] if scene else [])])
     timer, clock = StageTimer(), LogClock()
     statistics: dict[str, dict[str, Any]] = {}
-    n_frames, last_stamp = 0, 0
+    n_frames, last_stamp, phase = 0, 0, "start-up"
     ending = ("error", "run failed before the first frame")
     started = time.perf_counter()
     library = f"slamfront {slamfront.__version__}"
     options = recipe.log
-    with (
-        Interrupts() as interrupts,
-        RunLogWriter(
-            log_path, options.compression, options.chunk_size, library, options.sync_seconds, interrupts.critical
-        ) as log,
-    ):
-        with clock:
-            _record_provenance(log, pipeline, origin, metadata or {})
-        total = feed.total()
-        bar = tqdm(
-            total=total if max_frames is None or total is None else min(total, max_frames),
-            desc=recipe.name,
-            unit="frame",
-            disable=None if progress is None else not progress,  # None: only on a terminal
-        )
-        try:
-            for step in feed.steps():
-                if max_frames is not None and n_frames >= max_frames:
-                    break
-                frame = step.frame
-                last_stamp = frame.timestamp_ns
+    try:
+        with (
+            Interrupts() as interrupts,
+            RunLogWriter(
+                log_path, options.compression, options.chunk_size, library, options.sync_seconds, interrupts.critical
+            ) as log,
+        ):
+            with clock:
+                _record_provenance(log, pipeline, origin, metadata or {})
+                log.sync()  # recipe and versions are on disk before the first frame: even a SIGKILL keeps them
+            total = feed.total()
+            bar = tqdm(
+                total=total if max_frames is None or total is None else min(total, max_frames),
+                desc=recipe.name,
+                unit="frame",
+                disable=None if progress is None else not progress,  # None: only on a terminal
+            )
+            try:
+                phase = "streaming"
+                for step in feed.steps():
+                    if max_frames is not None and n_frames >= max_frames:
+                        break
+                    frame = step.frame
+                    last_stamp = frame.timestamp_ns
+                    with clock:
+                        info = feed.log_frame(log, step)
+                    observers.observe("frames", info)
+                    inputs = StageInputs(frame=frame, outputs={}, stages={})
+                    for stage in stages:
+                        if stage.kind in recorded:
+                            with clock:
+                                produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
+                        else:
+                            tick = time.perf_counter()
+                            produced = list(stage.process(inputs))
+                            timer.add(stage.kind, time.perf_counter() - tick)
+                            with clock:
+                                _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                        inputs.outputs[stage.kind] = produced
+                        inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
+                    n_frames += 1
+                    if scene is not None:
+                        with clock:
+                            scene.after_frame(log, last_stamp)
+                    bar.update()
+                phase = "the stages' finish"
                 with clock:
-                    info = feed.log_frame(log, step)
-                observers.observe("frames", info)
-                inputs = StageInputs(frame=frame, outputs={}, stages={})
+                    log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
+                recorded_finish = feed.recorded_finish()
                 for stage in stages:
                     if stage.kind in recorded:
                         with clock:
-                            produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
-                    else:
-                        tick = time.perf_counter()
-                        produced = list(stage.process(inputs))
-                        timer.add(stage.kind, time.perf_counter() - tick)
-                        with clock:
-                            _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
-                    inputs.outputs[stage.kind] = produced
-                    inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
-                n_frames += 1
-                if scene is not None:
+                            _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
+                        continue
+                    tick = time.perf_counter()
+                    produced = list(stage.finish())
+                    timer.finish_seconds[stage.kind] = time.perf_counter() - tick
                     with clock:
-                        scene.after_frame(log, last_stamp)
-                bar.update()
-            with clock:
-                log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
-            recorded_finish = feed.recorded_finish()
-            for stage in stages:
-                if stage.kind in recorded:
+                        _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                for stage in stages:
+                    values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
+                    statistics[stage.kind] = values
                     with clock:
-                        _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
-                    continue
-                tick = time.perf_counter()
-                produced = list(stage.finish())
-                timer.finish_seconds[stage.kind] = time.perf_counter() - tick
+                        log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
+                seconds = time.perf_counter() - started
+                phase = "evaluation"
+                metrics, sections = _evaluate(pipeline, feed, out_dir, evaluations, statistics, n_frames, seconds)
+                metrics["timing"] = timer.summary()
                 with clock:
-                    _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
-            for stage in stages:
-                values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
-                statistics[stage.kind] = values
+                    log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
+                ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
+            except KeyboardInterrupt as exc:
+                ending = ("warning", f"run interrupted ({exc or 'SIGINT'}) after {n_frames} frames{_during(phase)}")
+                exc.log_path = log_path  # type: ignore[attr-defined]  # the CLI says where the log is
+                raise
+            except SlamfrontError as exc:
+                ending = ("error", f"run stopped by bad input after {n_frames} frames{_during(phase)}: {exc}")
+                raise
+            except BaseException as exc:
+                ending = ("error", f"run failed after {n_frames} frames{_during(phase)}: {type(exc).__name__}: {exc}")
+                raise
+            finally:
+                bar.close()
                 with clock:
-                    log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
-            seconds = time.perf_counter() - started
-            ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
-        except KeyboardInterrupt as exc:
-            ending = ("warning", f"run interrupted ({exc or 'SIGINT'}) after {n_frames} frames")
-            raise
-        except SlamfrontError as exc:
-            ending = ("error", f"run stopped by bad input after {n_frames} frames: {exc}")
-            raise
-        except BaseException as exc:
-            ending = ("error", f"run failed after {n_frames} frames: {type(exc).__name__}: {exc}")
-            raise
-        finally:
-            bar.close()
+                    if scene is not None:
+                        scene.write(log, last_stamp)
+                    note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                    log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
             with clock:
-                if scene is not None:
-                    scene.write(log, last_stamp)
-                note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
-                log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
+                log.close()
+    finally:
+        folder.record(complete=True)
 
-        metrics: dict[str, Any] = {
-            "recipe": recipe.name,
-            "seconds": seconds,
-            "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
-            "n_frames": n_frames,
-        }
-        for stage in stages:
-            for key, value in statistics[stage.kind].items():
-                metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
-        names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
-        context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
-        sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
-        for section in sections:
-            metrics.update(section.metrics)
-        metrics["timing"] = timer.summary()
-        with clock:
-            log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
-            log.close()
-
-    metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-    sections.append(_log_section(metrics))
-    metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
-    report_path = write_report(out_dir, recipe, origin, metrics, sections)
+    with _writing_outputs(out_dir, "the run completed and its log is complete, but"):
+        metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
+        sections.append(_log_section(metrics))
+        metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
+        report_path = write_report(out_dir, recipe, origin, metrics, sections)
+    folder.record(complete=True)
     return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+
+
+def _during(phase: str) -> str:
+    """Where a run ended, for its last ``/log`` line (frames are counted while streaming)."""
+    return "" if phase == "streaming" else f", in {phase}"
+
+
+_OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+"""Failures to write outputs that are the machine's state, not a bug: a full disk, a
+file-size limit, a quota, a read-only or forbidden folder."""
+
+
+@contextlib.contextmanager
+def _writing_outputs(out_dir: Path, context: str = "") -> Iterator[None]:
+    """Turn a full disk (or a folder that became unwritable) into a one-line error."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in _OUTPUT_ERRNOS:
+            raise
+        prefix = f"{context} " if context else ""
+        raise SlamfrontError(f"{out_dir}: {prefix}its outputs cannot be written: {exc.strerror or exc}") from None
+
+
+def _evaluate(
+    pipeline: Pipeline, feed: FrameFeed, out_dir: Path, evaluations: Sequence[Any],
+    statistics: dict[str, dict[str, Any]], n_frames: int, seconds: float,
+) -> tuple[dict[str, Any], list[EvaluationReport]]:
+    """The run's metrics and report sections; evaluations write their plots meanwhile."""
+    metrics: dict[str, Any] = {
+        "recipe": pipeline.recipe.name,
+        "seconds": seconds,
+        "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
+        "n_frames": n_frames,
+    }
+    for kind, values in statistics.items():
+        for key, value in values.items():
+            metrics[key if key not in metrics else f"{kind}.{key}"] = value
+    names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
+    context = EvaluationContext(feed.source, out_dir, pipeline.recipe.eval, dict(metrics), names)
+    with _writing_outputs(out_dir):
+        sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
+    for section in sections:
+        metrics.update(section.metrics)
+    return metrics, sections
 
 
 def _log_statistics(

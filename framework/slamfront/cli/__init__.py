@@ -29,6 +29,7 @@ from slamfront.cli import (
     sweep_cmd,
 )
 from slamfront.errors import SlamfrontError
+from slamfront.text import shorten
 
 COMMANDS = (
     run_cmd,
@@ -61,15 +62,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
         return int(args.handler(args) or 0)
     except SlamfrontError as exc:
-        print(f"slamfront: error: {exc}", file=sys.stderr)
+        # one line, whatever the message quotes from a file (escapes shown, length capped)
+        print(f"slamfront: error: {shorten(str(exc), 2000)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        print(f"slamfront: interrupted ({exc or 'SIGINT'}); the log written so far is finalised", file=sys.stderr)
+        log = getattr(exc, "log_path", None)
+        finalised = f"; the log written so far is finalised: {log}" if log else ""
+        print(f"slamfront: interrupted ({exc or 'SIGINT'}){finalised}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `slamfront plugins | head`
         return 0

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from slamfront.mcaplog.diff import DEFAULT_IGNORED_TOPICS, diff_logs
 from slamfront.mcaplog.reader import log_file
+from slamfront.text import printable
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -47,6 +48,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"identical: {result.messages_compared} messages on {result.topics_compared} topics{ignored}")
     else:
         for difference in result.differences:
-            print(difference.describe())
+            print(printable(difference.describe(), keep_newlines=False))
         print(f"{len(result.differences)} of {result.topics_compared} topics differ (A = {a}, B = {b})")
     return 0 if result.identical else 1
