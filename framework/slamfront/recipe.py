@@ -11,14 +11,14 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from slamfront.data import checkout_root, data_root
 from slamfront.errors import PluginError, RecipeError, SlamfrontError
-from slamfront.limits import current_limits, over_limit
+from slamfront.limits import check_limit, current_limits, over_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 from slamfront.text import shorten
@@ -52,6 +52,12 @@ class LogOptions(_Strict):
     scene_every: int = Field(20, ge=1, description="update /scene/map every this many frames")
     compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+
+    @field_validator("chunk_size")
+    @classmethod
+    def _readable_chunks(cls, value: int) -> int:
+        check_limit("chunk_bytes", value, "the chunk size (readers refuse larger chunks)")
+        return value
     sync_seconds: float | None = Field(
         5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
     )
@@ -61,8 +67,8 @@ class EvalOptions(_Strict):
     """How the run is evaluated and reported."""
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
-    recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
-    tolerances: list[int] = Field(
+    recall_at_k: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[Annotated[int, Field(ge=0)]] = Field(
         default_factory=list,
         description="also score loops at these tolerances (zeta), for sources that support it; "
         "metrics get the suffix _zeta<t>",
@@ -268,7 +274,7 @@ def _format_validation(exc: ValidationError, prefix: str) -> str:
     got = err.get("input")
     shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {shorten(repr(got), 80)})"
     more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
-    return f"{loc}: {err['msg']}{shown}{more}"
+    return f"{loc}: {err['msg'].removeprefix('Value error, ')}{shown}{more}"
 
 
 def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:
