@@ -317,7 +317,7 @@ def execute_run(
                     log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
                 ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
             except KeyboardInterrupt as exc:
-                ending = ("warning", f"run interrupted ({exc or 'SIGINT'}) after {n_frames} frames{_during(phase)}")
+                ending = ("warning", f"run interrupted ({str(exc) or 'SIGINT'}) after {n_frames} frames{_during(phase)}")
                 exc.log_path = log_path  # type: ignore[attr-defined]  # the CLI says where the log is
                 raise
             except SlamfrontError as exc:
@@ -328,11 +328,13 @@ def execute_run(
                 raise
             finally:
                 bar.close()
-                with clock:
-                    if scene is not None:
-                        scene.write(log, last_stamp)
-                    note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
-                    log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
+                if not log.failed:  # after a failed write (a full disk) the file is left as it is
+                    with clock:
+                        if scene is not None:
+                            scene.write(log, last_stamp)
+                        note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                        line = foxglove.log_line(ending[1] + note, last_stamp, ending[0])
+                        log.write_foxglove(LOG_TOPIC, line, last_stamp)
             with clock:
                 log.close()
     finally:

@@ -73,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         log = getattr(exc, "log_path", None)
         finalised = f"; the log written so far is finalised: {log}" if log else ""
-        print(f"slamfront: interrupted ({exc or 'SIGINT'}){finalised}", file=sys.stderr)
+        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}){finalised}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `slamfront plugins | head`
         return 0

@@ -1,6 +1,6 @@
 """.npy files without unpickling code.
 
-``np.load(path, allow_pickle=True)`` runs whatever a crafted file's pickle asks for.
+Letting ``np.load`` unpickle runs whatever a crafted file's pickle asks for.
 Some datasets (VPR-Bench's ``ground_truth_new.npy``) are NumPy *object* arrays, which
 ``np.save`` can only store as a pickle. :func:`load_npy` reads plain arrays with
 ``allow_pickle=False`` and object arrays with an unpickler that can build NumPy arrays,

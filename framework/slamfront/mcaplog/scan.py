@@ -556,7 +556,8 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     else:
         raise ValueError(f"unknown chunk compression {compression!r}")
     if len(out) != size:
-        raise ValueError(f"decompresses to {'more than' if len(out) > size else len(out)} bytes, not the {size} declared")
+        got = f"more than {size}" if len(out) > size else str(len(out))
+        raise ValueError(f"decompresses to {got} bytes, not the {size} declared")
     return out
 
 

@@ -131,6 +131,11 @@ class RunLogWriter:
         if self._sync_seconds is not None and time.monotonic() - self._last_sync >= self._sync_seconds:
             self._sync()
 
+    @property
+    def failed(self) -> bool:
+        """A write failed (a full disk, say): the file stays as it is on disk, unfinalised."""
+        return self._failed
+
     def _check_open(self) -> None:
         if self._closed:
             raise LogError(f"{self.path}: the log is already closed")
