@@ -274,7 +274,7 @@ def _format_validation(exc: ValidationError, prefix: str) -> str:
     got = err.get("input")
     shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {shorten(repr(got), 80)})"
     more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
-    return f"{loc}: {err['msg'].removeprefix('Value error, ')}{shown}{more}"
+    return f"{loc}: {err['msg']}{shown}{more}"
 
 
 def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:

@@ -59,6 +59,8 @@ _FOOTER = struct.Struct("<BQQQI")  # opcode, length (20), summary start, summary
 _FOOTER_CRC_PREFIX = _FOOTER.size - 4  # the summary CRC covers the footer up to its own field
 _DATA_END = struct.Struct("<BQI")  # opcode, length (4), data section crc
 _COMPRESSIONS = ("", "zstd", "lz4")
+_NAME_MAX = 16  # longest compression name a chunk header may carry
+_SEARCH_SPAN = _RECORD_HEAD.size + _CHUNK_HEAD.size + 4 + _NAME_MAX + 8  # enough to judge a chunk header
 _BLOCK = 1 << 20
 
 # Records a reader of the data section needs; indexes and statistics are rebuilt by any writer.
@@ -366,7 +368,7 @@ class RecordScanner:
     def _chunk_at(self, offset: int, length: int, available: int) -> Iterator[McapRecord]:
         """Read the chunk record at ``offset``; returns where reading goes on (None: stop)."""
         state = self.state
-        head = self._stream.read(min(available, _CHUNK_HEAD.size + 4 + 256 + 8))
+        head = self._stream.read(min(available, _SEARCH_SPAN - _RECORD_HEAD.size))
         declared = _chunk_length(head)
         if declared is None:
             if length > available or len(head) < _CHUNK_HEAD.size + 4:
@@ -472,19 +474,18 @@ class RecordScanner:
         block_start = start
         while block_start < size:
             self._stream.seek(block_start)
-            block = self._stream.read(_BLOCK + 64)
+            block = self._stream.read(_BLOCK + _SEARCH_SPAN)
             candidates = sorted(
                 i for token in (bytes([Opcode.CHUNK]), bytes([Opcode.DATA_END])) for i in _find_all(block, token, _BLOCK)
             )
             for i in candidates:
-                if self._plausible(block_start + i):
+                if self._plausible(block_start + i, block[i : i + _SEARCH_SPAN]):
                     return block_start + i
             block_start += _BLOCK
         return None
 
-    def _plausible(self, offset: int) -> bool:
-        self._stream.seek(offset)
-        head = self._stream.read(_RECORD_HEAD.size + _CHUNK_HEAD.size + 4 + 256 + 8)
+    def _plausible(self, offset: int, head: bytes) -> bool:
+        """Whether ``head`` (the bytes at ``offset``) starts a well-formed chunk or data end."""
         if len(head) < _RECORD_HEAD.size:
             return False
         opcode, length = _RECORD_HEAD.unpack_from(head)
@@ -520,7 +521,7 @@ def _chunk_length(head: bytes) -> int | None:
     if len(head) < pos + 4:
         return None
     (name_length,) = struct.unpack_from("<I", head, pos)
-    if name_length > 16 or len(head) < pos + 4 + name_length + 8:
+    if name_length > _NAME_MAX or len(head) < pos + 4 + name_length + 8:
         return None
     try:
         compression = head[pos + 4 : pos + 4 + name_length].decode()
