@@ -255,14 +255,15 @@ def execute_run(
             with clock:
                 _record_provenance(log, pipeline, origin, metadata or {})
                 log.sync()  # recipe and versions are on disk before the first frame: even a SIGKILL keeps them
-            total = feed.total()
-            bar = tqdm(
-                total=total if max_frames is None or total is None else min(total, max_frames),
-                desc=recipe.name,
-                unit="frame",
-                disable=None if progress is None else not progress,  # None: only on a terminal
-            )
+            bar: tqdm | None = None
             try:
+                total = feed.total()
+                bar = tqdm(
+                    total=total if max_frames is None or total is None else min(total, max_frames),
+                    desc=recipe.name,
+                    unit="frame",
+                    disable=None if progress is None else not progress,  # None: only on a terminal
+                )
                 phase = "streaming"
                 for step in feed.steps():
                     if max_frames is not None and n_frames >= max_frames:
@@ -327,7 +328,8 @@ def execute_run(
                 ending = ("error", f"run failed after {n_frames} frames{_during(phase)}: {type(exc).__name__}: {exc}")
                 raise
             finally:
-                bar.close()
+                if bar is not None:
+                    bar.close()
                 if not log.failed:  # after a failed write (a full disk) the file is left as it is
                     with clock:
                         if scene is not None:
