@@ -8,14 +8,14 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from slamfront.data import checkout_root
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.validate import foxglove_message_types, validate_log
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import RunResult, run_pipeline
 from tests.helpers import rewrite_log, small_synthetic_recipe
 
-LAYOUT = checkout_root() / "foxglove" / "slamfront-layout.json"
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / "foxglove" / "slamfront-layout.json"
 
 # what the 3-D panel draws, by schema (Foxglove docs, "3D panel")
 DRAWN_IN_3D = {
@@ -102,7 +102,7 @@ def test_the_foxglove_layout_shows_topics_the_logs_have(full_log: RunResult) -> 
         assert topic in schemas and field in json.loads(next(read_messages(full_log.log_path, [topic])).data)
     placed = json.dumps(layout["layout"])
     assert all(panel in placed for panel in panels)  # every configured panel is on screen
-    readme = (checkout_root() / "README.md").read_text()
+    readme = (REPO / "README.md").read_text()
     assert "foxglove/slamfront-layout.json" in readme
 
 

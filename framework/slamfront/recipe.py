@@ -16,11 +16,12 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from slamfront.data import checkout_root, data_root
+from slamfront.data import data_root
 from slamfront.errors import PluginError, RecipeError, SlamfrontError
 from slamfront.limits import check_limit, current_limits, over_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
+from slamfront.resources import shipped_dir
 from slamfront.text import shorten
 
 
@@ -111,18 +112,20 @@ class Recipe(_Strict):
 
 
 def recipes_dir() -> Path:
-    """The shipped recipes (``recipes/`` in the checkout)."""
-    return checkout_root() / "recipes"
+    """The shipped recipes (installed package data; ``recipes/`` in the repository)."""
+    return shipped_dir("recipes")
 
 
 def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
-    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
+    """A path as given; for a bare name, ``<name>.yaml`` in the current directory, else the
+    shipped ``folder/<name>.yaml``. The user's own file always wins over a shipped one."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = folder / f"{name_or_path}.yaml"
-    if path.suffix == "" and shipped.exists():
-        return shipped
+    if path.suffix == "" and path.name == str(name_or_path):
+        for candidate in (path.with_name(f"{path.name}.yaml"), folder / f"{path.name}.yaml"):
+            if candidate.is_file():
+                return candidate
     raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 

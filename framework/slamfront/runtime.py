@@ -422,8 +422,8 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
         "Writing includes encoding the images, serialising every message, chunk compression "
-        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with "
-        "`foxglove/slamfront-layout.json`."
+        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with the "
+        "shipped layout (`slamfront layout` prints where it is)."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 

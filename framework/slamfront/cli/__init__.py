@@ -21,11 +21,11 @@ from slamfront.cli import (
     optimize_cmd,
     outliers_cmd,
     plugins_cmd,
-    recipes_cmd,
     recover_cmd,
     replay_cmd,
     retrieval_cmd,
     run_cmd,
+    shipped_cmd,
     sweep_cmd,
 )
 from slamfront.errors import SlamfrontError
@@ -42,7 +42,7 @@ COMMANDS = (
     inspect_cmd,
     diff_cmd,
     recover_cmd,
-    recipes_cmd,
+    shipped_cmd,
     datasets_cmd,
     optimize_cmd,
     outliers_cmd,
