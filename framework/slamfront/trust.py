@@ -8,23 +8,37 @@ user passes ``--trust-log``. The fields that would are found here, by what their
 values are, so the check needs no plugin (and imports none):
 
 - ``plugin_modules``: any entry would be imported;
-- any string in a stage's or the source's ``params`` that is an absolute path, starts
-  with ``~``, or has a ``..`` component: relative paths resolve under the data root (or
-  under a dataset folder that itself does), so only these can leave it.
+- any string in a stage's or the source's ``params`` that has a ``..`` component, or is
+  an absolute path (``~`` included) outside the data root: relative paths resolve under
+  the data root (or under a dataset folder that itself does), so only these can leave it.
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
+from slamfront.data import data_root
 from slamfront.errors import RecipeError
 from slamfront.plugin import KINDS
 from slamfront.text import shorten
 
 TRUST_FLAG = "--trust-log"
-_ESCAPING = re.compile(r"^(/|~|\\\\|[A-Za-z]:[\\/])|(^|[\\/])\.\.([\\/]|$)")
+_PARENT = re.compile(r"(^|[\\/])\.\.([\\/]|$)")
+_ABSOLUTE = re.compile(r"^(/|~|\\\\|[A-Za-z]:[\\/])")
+
+
+def _leaves_data_root(value: str, root: Path) -> bool:
+    if _PARENT.search(value):
+        return True
+    if not _ABSOLUTE.match(value):
+        return False
+    try:
+        return not Path(value).expanduser().resolve().is_relative_to(root)
+    except (OSError, RuntimeError, ValueError):  # an unresolvable path (a loop of links, a NUL): refuse it
+        return True
 
 
 def _strings(value: Any, path: str) -> Iterator[tuple[str, str]]:
@@ -42,6 +56,7 @@ def untrusted_fields(recipe: Mapping[str, Any]) -> list[tuple[str, str]]:
     """``(field, why)`` for every field of a foreign recipe that would reach code, or
     the file system outside the data root."""
     found = []
+    root = data_root().resolve()
     modules = recipe.get("plugin_modules") or []
     if modules:
         found.append(("plugin_modules", f"would import {', '.join(map(str, modules))}"))
@@ -50,7 +65,7 @@ def untrusted_fields(recipe: Mapping[str, Any]) -> list[tuple[str, str]]:
         if not isinstance(spec, Mapping):
             continue
         for field, value in _strings(spec.get("params", {}), f"{kind}.params"):
-            if _ESCAPING.search(value):
+            if _leaves_data_root(value, root):
                 found.append((field, f"names a path outside the data root ({value})"))
     return found
 
