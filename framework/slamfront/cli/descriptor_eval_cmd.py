@@ -16,6 +16,7 @@ from slamfront.errors import DataError, PluginError
 from slamfront.imageio import list_images, read_image
 from slamfront.local_features import DESCRIPTORS, DETECTORS, SURF_UNAVAILABLE
 from slamfront.matching import MatchingConfig
+from slamfront.outputs import make_folder
 
 # Barbosa 2017, tables 3 and 4 (TUM RGB-D fr2/pioneer_slam, OpenCV 3.0, SURF included)
 PUBLISHED = {
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise DataError(f"{args.source}: {exc}") from None
     out = args.out or Path("logs") / "descriptor_eval" / label
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
