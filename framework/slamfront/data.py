@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import platformdirs
 
+from slamfront.errors import DataError
+
 if TYPE_CHECKING:
     from pydantic import ValidationInfo
 
@@ -92,3 +94,18 @@ if TYPE_CHECKING:
 
     DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
     """A path in a plugin config: absolute as given, relative ones under the data root."""
+
+
+def path_inside(folder: Path, relative: str, where: str) -> Path:
+    """``folder / relative``, refused when it leads outside ``folder`` (an absolute path,
+    ``..``, or a symbolic link pointing out): a path *read from a data file* (a list of
+    frames, say) names files of that dataset, never anything else on the disk.
+
+    :param where: the file and line that named the path, for the message.
+    :raises DataError: naming ``where`` and the path.
+    """
+    path = folder / relative
+    base = folder.resolve()
+    if not path.resolve().is_relative_to(base):
+        raise DataError(f"{where}: {relative!r} leads outside the dataset folder {folder}")
+    return path

@@ -34,6 +34,8 @@ from slamfront.cli import (
     sweep_cmd,
 )
 from slamfront.errors import SlamfrontError, run_failure_of
+from slamfront.logcapture import TerminalHandler
+from slamfront.text import shorten
 
 COMMANDS = (
     run_cmd,
@@ -73,27 +75,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (see docs: shell completion)
-        import argcomplete
-
-        argcomplete.autocomplete(parser)
-    args = parser.parse_args(argv)
-    from slamfront.logcapture import TerminalHandler  # the MCAP writer: only once a command runs
-
     terminal = TerminalHandler()  # plugins' and slamfront's warnings, above the progress bar
     logging.getLogger().addHandler(terminal)
-    try:
+    try:  # parsing too: a Ctrl-C while the parser imports plugins is one line, not a traceback
+        parser = build_parser()
+        if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (see docs: shell completion)
+            import argcomplete
+
+            argcomplete.autocomplete(parser)
+        args = parser.parse_args(argv)
         return int(args.handler(args) or 0)
     except SlamfrontError as exc:
         failure = run_failure_of(exc)
         where = f" (the log written so far: {failure.log})" if failure else ""
-        print(f"slamfront: error: {exc}{where}", file=sys.stderr)
+        # one line, whatever the message quotes from a file (escapes shown, length capped)
+        print(f"slamfront: error: {shorten(str(exc), 2000)}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         failure = run_failure_of(exc)
-        where = f": {failure.log}" if failure else ""
-        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}); the log written so far is finalised{where}", file=sys.stderr)
+        finalised = f"; the log written so far is finalised: {failure.log}" if failure else ""
+        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}){finalised}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `slamfront plugins | head`
         return 0

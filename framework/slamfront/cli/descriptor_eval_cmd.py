@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slamfront.errors import DataError, PluginError
+from slamfront.outputs import make_folder
 
 if TYPE_CHECKING:
     import numpy as np
@@ -114,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise DataError(f"{args.source}: {exc}") from None
     out = args.out or Path("logs") / "descriptor_eval" / label
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slamfront.errors import DataError
+from slamfront.outputs import make_folder
 
 if TYPE_CHECKING:
     from slamfront.core.trajectory import TrajectoryEvaluation
@@ -88,10 +89,14 @@ def run_traj(args: argparse.Namespace) -> int:
         from slamfront.report import plots
 
         aligned = result.ate.alignment.apply_to_poses(est.poses[result.pairs[:, 1]])
-        plots.trajectories_2d(
-            {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
-            args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
-        )
+        make_folder(args.plot.parent, "folder of the plot")
+        try:
+            plots.trajectories_2d(
+                {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
+                args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
+            )
+        except OSError as exc:
+            raise DataError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
     if args.json:
         document = {"ground_truth": str(args.ground_truth), "estimate": str(args.estimate), **metrics}
         finite = {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in document.items()}

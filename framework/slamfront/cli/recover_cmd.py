@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slamfront.text import shorten
+
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
@@ -34,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
     else:
         salvaged = f" ({recovery.salvaged_messages} from the incomplete last chunk)" if recovery.salvaged_messages else ""
         print(f"recovered {kept}{salvaged} into {recovery.target}")
-        print(f"lost: {recovery.problem}")
+        print(f"lost: {shorten(recovery.problem or '', 4000)}")
     return 0

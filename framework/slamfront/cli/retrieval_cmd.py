@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from slamfront.errors import RecipeError
+from slamfront.outputs import make_folder
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         for label, extra in variants.items()
     }
     out = args.out or Path("logs") / f"{Path(args.recipe).stem}-retrieval"
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     ks = np.arange(1, args.max_k + 1)
     figure = plots.recall_curves({label: (ks, curve) for label, curve in curves.items()}, out / "retrieval.png",
                                  title="correct reference among the psi nearest descriptors")
