@@ -2,7 +2,8 @@
 
 The data root is ``$SLAMFRONT_DATA`` when set, else ``shared/data`` beside the source
 checkout. A relative path in a plugin config typed :data:`DataPath` is resolved against
-it, so recipes stay portable between machines.
+it, so recipes stay portable between machines; a path found only in the download cache
+(``slamfront datasets download``) resolves there.
 """
 
 from __future__ import annotations
@@ -40,8 +41,12 @@ def _resolve_data_path(value: Path, info: ValidationInfo) -> Path:
     if value.is_absolute():
         return value
     root = (info.context or {}).get("data_root") if info.context else None
-    return (Path(root) if root is not None else data_root()) / value
+    resolved = (Path(root) if root is not None else data_root()) / value
+    if not resolved.exists() and (cache_root() / value).exists():
+        return cache_root() / value  # a downloaded dataset
+    return resolved
 
 
 DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
-"""A path in a plugin config: absolute as given, relative ones under the data root."""
+"""A path in a plugin config: absolute as given, relative ones under the data root (or, when
+only there, in the download cache)."""
