@@ -71,7 +71,7 @@ def main() -> None:
         metric = next(iter(features.values()))[0].metric
         correct, ransac_only = [], []
         unthresholded = Matcher(MatchingConfig(), metric, np.inf)
-        for name, sequence in features.items():
+        for sequence in features.values():
             result = evaluate_descriptor(choice.label, descriptor, sequence, list(range(len(sequence))), NEIGHBOURS,
                                          5, MatchingConfig(max_distance=1e9), 0.0)
             correct.append(result.verified_distances)

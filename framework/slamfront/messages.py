@@ -159,13 +159,14 @@ def _decode(value: Any, hint: Any) -> Any:
     if isinstance(value, list):
         inner = _list_item_hint(hint)
         decoded = [_decode(v, inner) for v in value]
-        return tuple(decoded) if typing.get_origin(_strip_optional(hint)) is tuple else decoded
-    if isinstance(value, int) and _strip_optional(hint) is float:
+        return tuple(decoded) if typing.get_origin(strip_optional(hint)) is tuple else decoded
+    if isinstance(value, int) and strip_optional(hint) is float:
         return float(value)
     return value
 
 
-def _strip_optional(hint: Any) -> Any:
+def strip_optional(hint: Any) -> Any:
+    """``X | None`` -> ``X``; any other type hint unchanged."""
     if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
         args = [a for a in typing.get_args(hint) if a is not type(None)]
         if len(args) == 1:
@@ -182,12 +183,12 @@ def _accepts_float(hint: Any) -> bool:
 
 
 def _list_item_hint(hint: Any) -> Any:
-    args = typing.get_args(_strip_optional(hint))
+    args = typing.get_args(strip_optional(hint))
     return args[0] if args else Any
 
 
 def _dict_value_hint(hint: Any) -> Any:
-    args = typing.get_args(_strip_optional(hint))
+    args = typing.get_args(strip_optional(hint))
     return args[1] if len(args) == 2 else Any
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import types
 import typing
 import zipfile
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from slamfront.errors import DataError
-from slamfront.messages import Message
+from slamfront.messages import Message, strip_optional
 
 M = TypeVar("M", bound=Message)
 
@@ -83,7 +82,7 @@ def read_message_npz(path: Path, cls: type[M]) -> M:
 
 def _field(array: np.ndarray, hint: Any) -> Any:
     """One stored array back as the field's type."""
-    kind = _strip_none(hint)
+    kind = strip_optional(hint)
     if kind is np.ndarray:
         return array
     if typing.get_origin(kind) in (list, tuple):
@@ -99,12 +98,3 @@ def _field(array: np.ndarray, hint: Any) -> Any:
     if kind in (int, float, bool):
         return kind(array)
     raise TypeError(f"cannot read a field of type {hint}")
-
-
-def _strip_none(hint: Any) -> Any:
-    """``X | None`` -> ``X``."""
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        args = [a for a in typing.get_args(hint) if a is not type(None)]
-        if len(args) == 1:
-            return args[0]
-    return hint
