@@ -11,15 +11,21 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from slamfront.data import checkout_root, data_root
-from slamfront.errors import PluginError, RecipeError
+from slamfront.data import data_root
+from slamfront.errors import PluginError, RecipeError, SlamfrontError
+from slamfront.limits import check_limit, current_limits, over_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
+from slamfront.resources import shipped_dir
+from slamfront.suggest import did_you_mean, model_keys_at
+from slamfront.text import shorten
+
+LogLevel = Literal["debug", "info", "warning", "error"]
 
 
 class _Strict(BaseModel):
@@ -50,8 +56,17 @@ class LogOptions(_Strict):
     scene_every: int = Field(20, ge=1, description="update /scene/map every this many frames")
     compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+
+    @field_validator("chunk_size")
+    @classmethod
+    def _readable_chunks(cls, value: int) -> int:
+        check_limit("chunk_bytes", value, "the chunk size (readers refuse larger chunks)")
+        return value
     sync_seconds: float | None = Field(
         5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
+    )
+    level: LogLevel = Field(
+        "info", description="lowest level of the plugins' logging records kept in /log (warnings also go to the terminal)"
     )
 
 
@@ -59,8 +74,8 @@ class EvalOptions(_Strict):
     """How the run is evaluated and reported."""
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
-    recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
-    tolerances: list[int] = Field(
+    recall_at_k: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[Annotated[int, Field(ge=0)]] = Field(
         default_factory=list,
         description="also score loops at these tolerances (zeta), for sources that support it; "
         "metrics get the suffix _zeta<t>",
@@ -103,18 +118,20 @@ class Recipe(_Strict):
 
 
 def recipes_dir() -> Path:
-    """The shipped recipes (``recipes/`` in the checkout)."""
-    return checkout_root() / "recipes"
+    """The shipped recipes (installed package data; ``recipes/`` in the repository)."""
+    return shipped_dir("recipes")
 
 
 def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
-    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
+    """A path as given; for a bare name, ``<name>.yaml`` in the current directory, else the
+    shipped ``folder/<name>.yaml``. The user's own file always wins over a shipped one."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = folder / f"{name_or_path}.yaml"
-    if path.suffix == "" and shipped.exists():
-        return shipped
+    if path.suffix == "" and path.name == str(name_or_path):
+        for candidate in (path.with_name(f"{path.name}.yaml"), folder / f"{path.name}.yaml"):
+            if candidate.is_file():
+                return candidate
     raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
@@ -123,18 +140,88 @@ def find_recipe(name_or_path: str | Path) -> Path:
     return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
 
 
+def _expanded_nodes(data: Any, limit: int) -> int | None:
+    """Nodes of ``data`` counting every alias as a copy of what it names, stopping past
+    ``limit``; None when an alias refers to a node that contains it (a cycle).
+
+    PyYAML shares one object between an anchor and its aliases, so a few hundred bytes
+    parse into a small graph that is a huge tree: anything that walks it as a tree
+    (validation, copies, error messages) would expand it.
+    """
+    sizes: dict[int, int] = {}
+    ancestors: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(data, False)]
+    while stack:
+        node, leaving = stack.pop()
+        children = list(node.values()) if isinstance(node, dict) else node if isinstance(node, list) else None
+        if children is None:
+            continue
+        key = id(node)
+        if leaving:
+            ancestors.discard(key)
+            sizes[key] = 1 + sum(sizes.get(id(child), 1) for child in children)
+            if sizes[key] > limit:
+                return sizes[key]
+            continue
+        if key in sizes:
+            continue
+        if key in ancestors:
+            return None
+        ancestors.add(key)
+        stack.append((node, True))
+        stack.extend((child, False) for child in children)
+    return sizes.get(id(data), 1)
+
+
+def _bounded_yaml(text: str) -> Any:
+    """``yaml.safe_load`` with what a hostile document can cost bounded.
+
+    :raises ValueError: the reason, short (with ``:LINE`` first when known).
+    """
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"{line}: not valid YAML: {shorten(str(getattr(exc, 'problem', None) or exc))}") from None
+    except RecursionError:
+        raise ValueError(": not valid YAML: nested too deeply") from None
+    limit = current_limits().yaml_nodes
+    nodes = _expanded_nodes(data, limit)
+    if nodes is None:
+        raise ValueError(": an alias refers to a node that contains it (a recursive document)")
+    if nodes > limit:
+        raise ValueError(f": {over_limit('yaml_nodes', nodes, 'the number of nodes with aliases expanded')}")
+    return data
+
+
+def load_yaml(text: str, where: str, error: type[SlamfrontError] = RecipeError) -> Any:
+    """Parse YAML with aliases bounded to ``yaml_nodes`` expanded nodes
+    (:mod:`slamfront.limits`), recursive aliases and absurd nesting refused, and short
+    error messages.
+
+    :param where: the file (or other origin) named in errors.
+    :raises SlamfrontError: of type ``error``, one line naming ``where``.
+    """
+    try:
+        return _bounded_yaml(text)
+    except ValueError as exc:
+        raise error(f"{where}{exc}") from None
+
+
 def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
     """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
     try:
-        text = path.read_text()
+        size = path.stat().st_size
+        problem = over_limit("text_bytes", size, "its size in bytes")
+        if problem:
+            raise RecipeError(f"{path}: {problem}")
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
+    except UnicodeDecodeError as exc:
+        raise RecipeError(f"{path}: a {what} must be UTF-8 text (byte {exc.start} is not)") from None
+    raw = load_yaml(text, str(path))
     if not isinstance(raw, dict):
         raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
     raw.setdefault("name", path.stem)
@@ -153,9 +240,10 @@ def parse_override(item: str, origin: str) -> tuple[str, Any]:
     if not sep or not key:
         raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
     try:
-        return key, yaml.safe_load(value_text) if value_text.strip() else ""
-    except yaml.YAMLError as exc:
-        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {exc}") from exc
+        return key, _bounded_yaml(value_text) if value_text.strip() else ""
+    except ValueError as exc:
+        reason = str(exc).split("YAML: ", 1)[-1].lstrip(": ")
+        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {reason}") from None
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
@@ -163,10 +251,19 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
 
     The value is parsed as YAML. Missing intermediate mappings are created, so
     ``--set loop_detector.params.k=5`` works whether or not ``params`` was written.
+    ``--set STAGE.plugin=X`` naming another plugin starts X from its own defaults: the
+    old plugin's params are dropped (they rarely fit), and ``--set STAGE.params...``
+    given with it apply to X whatever their order on the command line.
     """
     result = yaml.safe_load(yaml.safe_dump(raw))  # deep copy of plain data
-    for item in overrides:
-        key, value = parse_override(item, origin)
+    parsed = [(item, *parse_override(item, origin)) for item in overrides]
+    # plugin switches first, so that the params set beside them are not dropped with the old ones
+    parsed.sort(key=lambda entry: not _is_plugin_switch(entry[1]))
+    for item, key, value in parsed:
+        if _is_plugin_switch(key):
+            stage = result.get(key.split(".")[0])
+            if isinstance(stage, dict) and stage.get("plugin") != value:
+                stage.pop("params", None)
         node: Any = result
         parts = key.split(".")
         for depth, part in enumerate(parts[:-1]):
@@ -188,13 +285,31 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
     return result
 
 
-def _format_validation(exc: ValidationError, prefix: str) -> str:
-    """pydantic's first error as ``prefix.field.path: message (got value)``."""
+def _is_plugin_switch(key: str) -> bool:
+    kind, _, field = key.partition(".")
+    return field == "plugin" and kind in ("source", *STAGE_KINDS)
+
+
+def _format_validation(exc: ValidationError, prefix: str, model: type[BaseModel] | None = None, owner: str = "") -> str:
+    """pydantic's first error as ``prefix.field.path: message (got value)``.
+
+    An unknown key (pydantic's bare "Extra inputs are not permitted") names the closest
+    keys ``model`` accepts at that place instead.
+
+    :param model: the model that was validated, to suggest keys from.
+    :param owner: what the keys belong to, for the message (``the nearest_neighbour loop_detector``).
+    """
     err = exc.errors()[0]
     loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
-    got = err.get("input")
-    shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
     more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
+    if err["type"] == "extra_forbidden" and model is not None and err["loc"]:
+        *path, key = err["loc"]
+        known = model_keys_at(model, path)
+        if known is not None:
+            what = f"parameter of {owner}" if owner else "key"
+            return f"{loc}: unknown {what}; {did_you_mean(str(key), known, 'keys')}{more}"
+    got = err.get("input")
+    shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {shorten(repr(got), 80)})"
     return f"{loc}: {err['msg']}{shown}{more}"
 
 
@@ -203,7 +318,7 @@ def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:
     try:
         return Recipe.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(f"{origin}: {_format_validation(exc, '')}") from exc
+        raise RecipeError(f"{origin}: {_format_validation(exc, '', Recipe)}") from exc
 
 
 def load_recipe(path_or_name: str | Path, overrides: Iterable[str] = ()) -> tuple[Recipe, Path]:
@@ -211,6 +326,21 @@ def load_recipe(path_or_name: str | Path, overrides: Iterable[str] = ()) -> tupl
     path = find_recipe(path_or_name)
     raw = apply_overrides(read_recipe_dict(path), overrides)
     return parse_recipe(raw, str(path)), path
+
+
+def override_keys(recipe: Recipe, registry: PluginRegistry) -> list[str]:
+    """Every key ``--set`` takes for ``recipe``: its own fields, each stage's ``plugin``, the
+    params of the plugins it names, and the log and eval options (for shell completion)."""
+    keys = [name for name, field in Recipe.model_fields.items() if field.annotation in (str, list[str])]
+    keys += [f"{kind}.plugin" for kind in ("source", *STAGE_KINDS)]
+    for module in recipe.plugin_modules:
+        registry.register_module(module)
+    for kind, spec in recipe.stage_specs().items():
+        if spec.plugin in registry.names(kind):
+            keys += [f"{kind}.params.{name}" for name in registry.get(kind, spec.plugin).cls.Config.model_fields]
+    keys += [f"log.{name}" for name in LogOptions.model_fields]
+    keys += [f"eval.{name}" for name in EvalOptions.model_fields]
+    return keys
 
 
 @dataclass
@@ -253,7 +383,9 @@ def validate_stage_params(
         try:
             config = info.cls.Config.model_validate(spec.params, context=context)
         except ValidationError as exc:
-            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
+            owner = f"the {spec.plugin} {kind}"
+            message = _format_validation(exc, f"{kind}.params", info.cls.Config, owner)
+            raise RecipeError(f"{origin}: {message}") from exc
         configs[kind] = (info.cls, config)
     return configs
 

@@ -16,6 +16,7 @@ from slamfront.errors import DataError, PluginError
 from slamfront.imageio import list_images, read_image
 from slamfront.local_features import DESCRIPTORS, DETECTORS, SURF_UNAVAILABLE
 from slamfront.matching import MatchingConfig
+from slamfront.outputs import make_folder
 
 # Barbosa 2017, tables 3 and 4 (TUM RGB-D fr2/pioneer_slam, OpenCV 3.0, SURF included)
 PUBLISHED = {
@@ -49,7 +50,8 @@ def add_parser(tools: argparse._SubParsersAction) -> None:
     parser.add_argument("--neighbours", type=int, default=10, help="local test: frames either side (default 10)")
     parser.add_argument("--top", type=int, default=5, help="global test: most similar frames listed (default 5)")
     parser.add_argument("--max-features", type=int, default=1000, help="keypoints per frame (default 1000)")
-    parser.add_argument("--geometry", choices=("fundamental", "homography", "none"), default="fundamental")
+    parser.add_argument("--geometry", choices=("fundamental", "homography", "none"), default="fundamental",
+                        help="RANSAC model that verifies the matches (default fundamental)")
     parser.add_argument("--step", type=int, default=1, help="use every step-th frame")
     parser.add_argument("--limit", type=int, help="use at most this many frames")
     parser.add_argument("-o", "--out", type=Path, help="output folder (default logs/descriptor_eval/<source>)")
@@ -106,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise DataError(f"{args.source}: {exc}") from None
     out = args.out or Path("logs") / "descriptor_eval" / label
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")

@@ -12,6 +12,7 @@ from slamfront.core.errors import CoreError
 from slamfront.core.trajectory import TrajectoryEvaluation, evaluate_poses, evaluate_trajectories
 from slamfront.errors import DataError
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
+from slamfront.outputs import make_folder
 
 TIMED_FORMATS = ("tum",)
 
@@ -22,7 +23,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="evaluate outside a run: trajectories (ATE/RPE), local descriptors (Barbosa 2017 ch. 5.1)",
         description="Evaluation tools that work on files, outside a recipe run.",
     )
-    tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True, help="the evaluation to run")
     traj = tools.add_parser(
         "traj",
         help="ATE and RPE of an estimated trajectory against the ground truth",
@@ -32,8 +33,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "are associated by timestamp; the other formats pose by pose."
         ),
     )
-    traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH")
-    traj.add_argument("estimate", type=Path, metavar="ESTIMATE")
+    traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH", help="the ground-truth trajectory file")
+    traj.add_argument("estimate", type=Path, metavar="ESTIMATE", help="the estimated trajectory file")
     traj.add_argument("--format", choices=sorted(TRAJECTORY_READERS), default="tum", help="file format (default tum)")
     traj.add_argument("--align", choices=("se3", "sim3", "none"), default="se3",
                       help="alignment before ATE: rigid (default), with scale (monocular), or none")
@@ -84,10 +85,14 @@ def run_traj(args: argparse.Namespace) -> int:
         from slamfront.report import plots
 
         aligned = result.ate.alignment.apply_to_poses(est.poses[result.pairs[:, 1]])
-        plots.trajectories_2d(
-            {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
-            args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
-        )
+        make_folder(args.plot.parent, "folder of the plot")
+        try:
+            plots.trajectories_2d(
+                {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
+                args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
+            )
+        except OSError as exc:
+            raise DataError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
     if args.json:
         document = {"ground_truth": str(args.ground_truth), "estimate": str(args.estimate), **metrics}
         finite = {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in document.items()}

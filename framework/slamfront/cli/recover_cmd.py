@@ -7,6 +7,7 @@ from pathlib import Path
 
 from slamfront.mcaplog.reader import log_file
 from slamfront.mcaplog.recover import recover_log
+from slamfront.text import shorten
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -34,5 +35,5 @@ def run(args: argparse.Namespace) -> int:
     else:
         salvaged = f" ({recovery.salvaged_messages} from the incomplete last chunk)" if recovery.salvaged_messages else ""
         print(f"recovered {kept}{salvaged} into {recovery.target}")
-        print(f"lost: {recovery.problem}")
+        print(f"lost: {shorten(recovery.problem or '', 4000)}")
     return 0

@@ -10,6 +10,7 @@ import numpy as np
 
 from slamfront.errors import RecipeError
 from slamfront.evaluation.retrieval import descriptor_curve
+from slamfront.outputs import make_folder
 from slamfront.report import plots
 
 
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         for label, extra in variants.items()
     }
     out = args.out or Path("logs") / f"{Path(args.recipe).stem}-retrieval"
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     ks = np.arange(1, args.max_k + 1)
     figure = plots.recall_curves({label: (ks, curve) for label, curve in curves.items()}, out / "retrieval.png",
                                  title="correct reference among the psi nearest descriptors")

@@ -150,11 +150,17 @@ def is_number(token: str) -> bool:
     return True
 
 
+_MAX_ID = (1 << 63) - 1  # ids are stored as int64
+
+
 def _ids(tokens: list[str], name: str, line: int, tag: str) -> list[int]:
     try:
-        return [int(token) for token in tokens]
+        ids = [int(token) for token in tokens]
     except ValueError:
         raise CoreError(f"{name}:{line}: {tag}: vertex ids must be integers, got {' '.join(tokens)!r}") from None
+    if any(not -_MAX_ID <= i <= _MAX_ID for i in ids):
+        raise CoreError(f"{name}:{line}: {tag}: a vertex id is outside the 64-bit range, got {' '.join(tokens)[:80]!r}")
+    return ids
 
 
 def parse_graph(lines: Iterable[str], name: str = "graph", graph_format: GraphFormat = "auto") -> ParsedGraph:

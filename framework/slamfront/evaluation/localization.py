@@ -145,7 +145,10 @@ class LocalizationEvaluation(Evaluation):
         else:
             notes.append("No localized in-map frame has a ground-truth pose: no ATE/RPE.")
         if context.options.plots:
-            figures = self._plots(context.out_dir, scored, curve, metrics)
+            # in-map frames with a true pose that got none: marked on the trajectory and error plots
+            lost = [e for e in estimates if e.keyframe < 0 and self._in_map(e.frame)
+                    and self._truth.get(e.frame) is not None and self._truth[e.frame].pose is not None]
+            figures = self._plots(context.out_dir, scored, curve, metrics, lost)
         reasons = Counter(re.sub(r"\d+(\.\d+)?", "N", e.reason) for e in estimates if e.keyframe < 0)
         if reasons:
             notes.append("Not localized: " + "; ".join(f"{n} x {why}" for why, n in reasons.most_common()) + ".")
@@ -266,7 +269,8 @@ class LocalizationEvaluation(Evaluation):
     # --- plots --------------------------------------------------------------------------
 
     def _plots(self, out_dir: Path, scored: list[PoseEstimate], curve: PrecisionRecall | None,
-               metrics: dict) -> list[str]:
+               metrics: dict, lost: list[PoseEstimate]) -> list[str]:
+        """The PR curve; top view and error along the route (spikes circled, frames not localized marked)."""
         figures = []
         if curve is not None:
             pr = plots.localization_pr(
@@ -284,13 +288,14 @@ class LocalizationEvaluation(Evaluation):
         est = np.stack([e.pose[:3, 3] for e in route])
         keyframes = np.array([p[:3, 3] for p in self._positions.values()]).reshape(-1, 3)
         trajectory = plots.localization_plot(
-            gt, est, keyframes, out_dir / "localization.png", "estimated vs ground-truth trajectory"
+            gt, est, keyframes, out_dir / "localization.png", "estimated vs ground-truth trajectory",
+            lost=np.array([self._truth[e.frame].pose[:3, 3] for e in lost]).reshape(-1, 3),
         )
         errors = np.linalg.norm(est - gt, axis=1)
         error = plots.error_along(
             np.array([self._truth[e.frame].sequence_index for e in route], dtype=np.float64), errors,
             out_dir / "localization_error.png", "position error per frame (unaligned)", "sequence index",
-            "error [m]",
+            "error [m]", missing=np.array([self._truth[e.frame].sequence_index for e in lost], dtype=np.float64),
         )
         return [*figures, trajectory.name, error.name]
 

@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import PoseGraph, random_false_closures
+from slamfront.outputs import make_folder
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_text
 from slamfront.posegraph.solver import SolverOptions, objective, optimize
 from slamfront.report.plots import _pyplot
@@ -187,7 +188,7 @@ def plot(rows: Sequence[StudyRow], path: Path) -> Path:
 
 def write(rows: Sequence[StudyRow], out_dir: Path, plots: bool = True) -> list[Path]:
     """``outliers.md`` (table), ``outliers.json`` (rows) and ``outliers.png`` in ``out_dir``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_folder(out_dir)
     files = [
         write_text(out_dir / "outliers.md", "# Outlier study\n\n" + table(rows) + "\n"),
         write_text(out_dir / "outliers.json", json.dumps([asdict(r) for r in rows], indent=1) + "\n"),

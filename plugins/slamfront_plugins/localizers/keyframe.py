@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -20,6 +21,8 @@ from slamfront.formats.npz import read_message_npz
 from slamfront.matching import Matcher, MatchingConfig, resolve_max_distance
 from slamfront.messages import Features, KeyframeAdded, KeyframeMap, Message, PoseEstimate
 from slamfront_plugins.localizers.keyframe_map import Ranked, TopologicalMap, View
+
+logger = logging.getLogger(__name__)
 
 # Fitted by benchmarks/bench_localization_confidence.py on synthetic worlds 11-16 (ORB, the
 # default matching), which no reported number uses; columns as slamfront.core.confidence.EVIDENCE.
@@ -351,6 +354,7 @@ class KeyframeLocalizer(Localizer):
         self, view: View, reason: str, ranked: Ranked | None = None, evidence: dict[str, float | int] | None = None
     ) -> PoseEstimate:
         """No pose: the reason, and whatever was compared (the best candidate and its evidence)."""
+        logger.info("frame %d not localized: %s", view.frame, reason)
         answer = {} if ranked is None else self._answer_fields(ranked)
         return PoseEstimate(frame=view.frame, keyframe=-1, reason=reason, **answer, **(evidence or {}))
 

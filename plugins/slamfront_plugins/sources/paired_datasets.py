@@ -15,8 +15,9 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import DataError
-from slamfront.data import DataPath, cache_root, data_root
+from slamfront.data import DataPath, data_root, download_root
 from slamfront.datasets import DatasetDownload
+from slamfront.formats.npy import load_npy
 from slamfront_plugins.sources.paired import PairedLayout, PairedTraversals, images_in
 
 NORDLAND_COMMIT = "ea9ca6f6e5f7c5181357c5f649f0a3e0a6a6a8d0"
@@ -56,11 +57,11 @@ UOFA = DatasetDownload(
 
 
 def dataset_folder(configured: Path | None, name: str) -> Path:
-    """``configured``, else ``<data root>/<name>`` when present, else ``<cache>/<name>``."""
+    """``configured``, else ``<data root>/<name>`` when present, else ``<download folder>/<name>``."""
     if configured is not None:
         return Path(configured)
     shared = data_root() / name
-    return shared if shared.is_dir() else cache_root() / name
+    return shared if shared.is_dir() else download_root() / name
 
 
 def find_traversal(root: Path, traversal: str, dataset: str) -> Path:
@@ -81,7 +82,7 @@ class TraversalFolders(PairedTraversals):
     """The dataset's name: its folder under the data root and its download."""
 
     class Config(PairedTraversals.Config):
-        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download folder")
         reference: str = Field("reference", description="folder of the reference traversal")
         query: str = Field("query", description="folder of the query traversal")
 
@@ -101,7 +102,7 @@ class Nordland(TraversalFolders):
     """Nordland railway (728 km, Norway), one season as reference and another as query.
 
     Reads ``<root>/<season>/*.png`` (default root: ``nordland`` under the data root, or
-    the download cache). The seasons are frame-aligned: the same file name is the same
+    the download folder). The seasons are frame-aligned: the same file name is the same
     place, so the ground truth pairs frames by name and refuses seasons whose names
     differ. Conventional use: reference summer, query winter.
     """
@@ -168,7 +169,7 @@ class VprBench(PairedTraversals):
 
     The ground truth file is a NumPy object array with one row per query,
     ``[query index, [reference indices]]``, indices into the numerically sorted image
-    lists (it is a pickle: load only files you trust). A query missing from it, or with
+    lists (a pickle, read by an unpickler that builds arrays and nothing else). A query missing from it, or with
     an empty list, has no true match. ``tolerance`` widens each listed reference by
     that many frames (default 0: the file already lists every correct reference).
     """
@@ -185,12 +186,9 @@ class VprBench(PairedTraversals):
         reference = images_in(root / "ref")
         query = images_in(root / "query")
         path = root / self.config.ground_truth
-        try:
-            table = np.load(path, allow_pickle=True)
-        except FileNotFoundError:
-            raise DataError(f"{path}: no such ground-truth file") from None
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{path}: not a NumPy ground-truth file ({exc})") from exc
+        if not path.is_file():
+            raise DataError(f"{path}: no such ground-truth file")
+        table = load_npy(path)  # an object array, rebuilt without running the pickle's code
         places = [np.empty(0, dtype=np.float64) for _ in query]
         if table.ndim != 2 or table.shape[1] != 2:
             raise DataError(f"{path}: expected rows of [query index, [reference indices]], got shape {table.shape}")
