@@ -277,7 +277,7 @@ class LocalizationEvaluation(Evaluation):
                 curve.recall, curve.precision,
                 (float(metrics["localization_recall"]), float(metrics["localization_precision"])),
                 curve.recall_at_100p, out_dir / "localization_pr.png",
-                f"localization precision-recall ({metrics['n_in_map_queries']} in-map, "
+                f"localization PR ({metrics['n_in_map_queries']} in-map, "
                 f"{metrics['n_out_of_map_queries']} out-of-map frames)",
             )
             figures.append(pr.name)
