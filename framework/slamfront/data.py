@@ -21,14 +21,19 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import platformdirs
-from pydantic import AfterValidator, ValidationInfo
 
 from slamfront.errors import DataError
 
+if TYPE_CHECKING:
+    from pydantic import ValidationInfo
+
 DATA_ENV = "SLAMFRONT_DATA"
+
+MIRROR_ENV = "SLAMFRONT_DATA_MIRROR"
+"""A mirror base URL used instead of the pinned origins by ``datasets fetch`` (``--url`` overrides it)."""
 
 
 def source_checkout() -> Path | None:
@@ -78,9 +83,22 @@ def _resolve_data_path(value: Path, info: ValidationInfo) -> Path:
     return resolved
 
 
-DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
-"""A path in a plugin config: absolute as given, relative ones under the data root (or, when
-only there, in the download cache)."""
+def __getattr__(name: str) -> Any:
+    # ``DataPath``, built on first use: pydantic is imported only by the configs that use
+    # it, so `slamfront datasets --help` (which reads this module's names) stays light.
+    if name == "DataPath":
+        from pydantic import AfterValidator
+
+        return Annotated[Path, AfterValidator(_resolve_data_path)]
+    raise AttributeError(f"module 'slamfront.data' has no attribute {name!r}")
+
+
+if TYPE_CHECKING:
+    from pydantic import AfterValidator
+
+    DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
+    """A path in a plugin config: absolute as given, relative ones under the data root (or, when
+    only there, among the downloads)."""
 
 
 def path_inside(folder: Path, relative: str, where: str) -> Path:

@@ -16,9 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import json
 import logging
-import os
 import platform
 import time
 from collections.abc import Iterable, Iterator, Sequence
@@ -60,6 +58,7 @@ from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
+from slamfront.report.metrics_file import write_json_atomically
 from slamfront.resources import layout_for
 
 __all__ = [
@@ -82,6 +81,10 @@ class RunResult:
     """``report.html``: the report as one self-contained page (plots inlined)."""
     notes: list[str] = field(default_factory=list)
     """What the user should know about how the run went (e.g. a replay's lost data)."""
+    phase_seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time of the run's phases after setup: ``frame_loop`` (frames and the stages'
+    ``finish``, logging included), ``evaluation`` (metrics and their plots), ``log_close``
+    and ``report`` (metrics.json, report.md, report.html)."""
 
 
 @dataclass
@@ -247,6 +250,7 @@ def execute_run(
     scene = SceneLogger(recipe.log.scene_every) if recipe.log.scene else None
     observers = _Observers([*evaluations, *([scene] if scene else [])])
     timer, clock = StageTimer(), LogClock()
+    phases: dict[str, float] = {}
     statistics: dict[str, dict[str, Any]] = {}
     n_frames, last_stamp = 0, 0
     ending = ("error", "run failed before the first frame")
@@ -340,9 +344,13 @@ def execute_run(
                         with clock:
                             log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
                     seconds = time.perf_counter() - started
+                    phases["frame_loop"] = seconds
                     where = "in evaluation"
                     metrics, sections = _evaluate(pipeline, feed, out_dir, evaluations, statistics, n_frames, seconds)
+                    phases["evaluation"] = time.perf_counter() - started - seconds
                     metrics["timing"] = timer.summary()
+                    metrics["evaluation_seconds"] = phases["evaluation"]
+                    tick = time.perf_counter()
                     with clock:
                         capture.flush(log, last_stamp)
                         log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
@@ -369,22 +377,25 @@ def execute_run(
                             log.write_foxglove(LOG_TOPIC, line, last_stamp)
                 with clock:
                     log.close()
+                phases["log_close"] = time.perf_counter() - tick
         finally:
             folder.record(complete=True)
 
         where = "while writing metrics.json and the report"
+        tick = time.perf_counter()
         with _writing_outputs(out_dir, "the run completed and its log is complete, but"):
             metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
             sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
             metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
             report_path = write_report(out_dir, recipe, origin, metrics, sections)
             html_path = write_html(report_path)
+        phases["report"] = time.perf_counter() - tick
     except BaseException as exc:
         if log_opened:
             note_run_failure(exc, log_path, where)
         raise
     folder.record(complete=True)
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path)
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path, phase_seconds=phases)
 
 
 def _logger_packages(pipeline: Pipeline) -> set[str]:
@@ -483,29 +494,3 @@ def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 
-
-def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
-    """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
-
-
-def _finite(value: Any) -> Any:
-    """NaN and infinities become null: metrics.json must be strict JSON for other tools."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {type(value).__name__} to metrics.json")

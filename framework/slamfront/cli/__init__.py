@@ -55,12 +55,19 @@ COMMANDS = (
 )
 
 
+class _Version(argparse.Action):
+    """``--version``, looked up only when asked (reading the package metadata costs ~20 ms)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object, **kwargs: object) -> None:
+        parser.exit(message=f"slamfront {slamfront.__version__}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slamfront",
         description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins, evaluate.",
     )
-    parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="show the version and exit")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, help="what to do")
     for command in COMMANDS:
         command.add_parser(commands)

@@ -8,8 +8,6 @@ from dataclasses import asdict
 from pathlib import Path
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.diff import DEFAULT_IGNORED_TOPICS, diff_logs
-from slamfront.mcaplog.reader import log_file, summarize
 from slamfront.text import printable
 
 
@@ -29,12 +27,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--ignore", action="append", default=[], metavar="TOPIC",
                         help="also leave out topics matching this glob, e.g. '/camera/*' (repeatable)")
     parser.add_argument("--strict", action="store_true",
-                        help=f"compare everything, timings and {', '.join(DEFAULT_IGNORED_TOPICS)} included")
+                        help="compare everything, timings and the /log topic included")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.diff import diff_logs
+    from slamfront.mcaplog.reader import log_file, summarize
+
     a, b = log_file(args.log_a), log_file(args.log_b)
     for path in (a, b):
         summary = summarize(path)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LogSummary, embedded_recipe_text, log_file, summarize
-from slamfront.mcaplog.validate import validate_log
-from slamfront.recipe import load_yaml
 from slamfront.text import printable, shorten
-from slamfront.trust import TRUST_FLAG, untrusted_fields
+
+if TYPE_CHECKING:
+    from slamfront.mcaplog.reader import LogSummary
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -30,6 +30,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.reader import embedded_recipe_text, log_file, summarize
+    from slamfront.mcaplog.validate import validate_log
+    from slamfront.trust import TRUST_FLAG
+
     path = log_file(args.log)
     if args.recipe:
         print(printable(embedded_recipe_text(path)), end="")
@@ -60,6 +64,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _untrusted(path: Path) -> list[tuple[str, str]]:
+    from slamfront.mcaplog.reader import embedded_recipe_text
+    from slamfront.recipe import load_yaml
+    from slamfront.trust import untrusted_fields
+
     try:
         raw = load_yaml(embedded_recipe_text(path), f"{path}:recipe.yaml", LogError)
     except LogError:

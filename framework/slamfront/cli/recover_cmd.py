@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slamfront.mcaplog.reader import log_file
-from slamfront.mcaplog.recover import recover_log
 from slamfront.text import shorten
 
 
@@ -25,6 +23,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.reader import log_file
+    from slamfront.mcaplog.recover import recover_log
+
     recovery = recover_log(log_file(args.log), log_file(args.out))
     kept = (
         f"{recovery.messages} messages on {recovery.topics} topics, {recovery.metadata} metadata records, "

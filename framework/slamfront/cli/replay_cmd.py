@@ -5,12 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slamfront.cli.run_cmd import print_outcome
-from slamfront.mcaplog.reader import log_file
+from slamfront.kinds import STAGE_KINDS
 from slamfront.outputs import safe_name
-from slamfront.plugin import STAGE_KINDS
-from slamfront.recipe import apply_overrides, load_recipe, parse_recipe
-from slamfront.replay import log_recipe_data, replay_log
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -48,6 +44,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.cli.run_cmd import print_outcome
+    from slamfront.mcaplog.reader import log_file
+    from slamfront.recipe import apply_overrides, load_recipe, parse_recipe
+    from slamfront.replay import log_recipe_data, replay_log
+
     log = log_file(args.log)
     recipe, origin = None, None
     if args.recipe:

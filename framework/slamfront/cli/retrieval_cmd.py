@@ -6,12 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
 from slamfront.errors import RecipeError
-from slamfront.evaluation.retrieval import descriptor_curve
 from slamfront.outputs import make_folder
-from slamfront.report import plots
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -35,6 +31,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from slamfront.evaluation.retrieval import descriptor_curve
+    from slamfront.report import plots
+
     if args.max_k < 1:
         raise RecipeError(f"--max-k must be at least 1, got {args.max_k}")
     variants: dict[str, list[str]] = {"recipe": []}

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamfront.cli.completion import complete_overrides, complete_recipes
 from slamfront.outputs import safe_name
-from slamfront.recipe import build_pipeline, load_recipe
-from slamfront.runtime import RunResult, run_pipeline
 from slamfront.text import shorten
+
+if TYPE_CHECKING:
+    from slamfront.runtime import RunResult
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -35,6 +37,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.recipe import build_pipeline, load_recipe
+    from slamfront.runtime import run_pipeline
+
     recipe, path = load_recipe(args.recipe, args.overrides)
     if args.plugin_module:
         recipe = recipe.model_copy(update={"plugin_modules": [*recipe.plugin_modules, *args.plugin_module]})

@@ -19,7 +19,7 @@ from slamfront.outputs import make_folder
 from slamfront.posegraph import report
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_text, write_tum
 from slamfront.posegraph.solver import OptimizationResult, SolverOptions, optimize
-from slamfront.runtime import write_json_atomically
+from slamfront.report.metrics_file import write_json_atomically
 
 SHOWN = (
     "graph", "format", "dim", "n_vertices", "n_edges", "n_loop_closures", "mode", "kernel", "kernel_parameter",
