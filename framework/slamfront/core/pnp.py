@@ -53,7 +53,7 @@ def backproject(
     return np.stack([x, y, z], axis=1).astype(np.float32)
 
 
-def first_of_each(rows: np.ndarray) -> np.ndarray:
+def _first_of_each(rows: np.ndarray) -> np.ndarray:
     """(N,) bool: True for the first occurrence of each distinct row of (N, D) ``rows``."""
     if len(rows) == 0:
         return np.zeros(0, dtype=bool)
@@ -101,7 +101,7 @@ def pnp_ransac(
     if len(object_points) != len(image_points):
         raise CoreError(f"{len(object_points)} object points but {len(image_points)} image points")
     usable = np.flatnonzero(np.all(np.isfinite(object_points), axis=1) & np.all(np.isfinite(image_points), axis=1))
-    usable = usable[first_of_each(object_points[usable]) & first_of_each(image_points[usable])]
+    usable = usable[_first_of_each(object_points[usable]) & _first_of_each(image_points[usable])]
     if len(usable) < max(min_inliers, 4):
         return None
     obj, img = object_points[usable], image_points[usable]

@@ -18,7 +18,7 @@ from pydantic import Field
 
 from slamfront import Camera, PluginConfig
 from slamfront.core.geometry import invert
-from slamfront.core.pnp import backproject, first_of_each, pnp_ransac
+from slamfront.core.pnp import backproject, pnp_ransac
 from slamfront.local_features import DescriptorType
 from slamfront.matching import Matcher, MatchingConfig
 
@@ -85,11 +85,7 @@ def verify(
     :param reference: the older frame (its ``points`` need depth).
     :param query: the frame that closes the loop (its keypoints are enough).
     """
-    found = matcher.match(query.keypoints, query.descriptors, reference.keypoints, reference.descriptors)
-    # one-to-one, closest first: of several pixels matched to one reference point only the
-    # closest can be right, so the inlier ratio below counts distinct correspondences
-    pairs = found.pairs[np.argsort(found.distances, kind="stable")]
-    pairs = pairs[first_of_each(pairs[:, 1:])]
+    pairs = matcher.match(query.keypoints, query.descriptors, reference.keypoints, reference.descriptors).pairs
     pairs = pairs[np.all(np.isfinite(reference.points[pairs[:, 1]]), axis=1)] if len(pairs) else pairs
     if len(pairs) < config.min_inliers:
         return Verification(None, 0, len(pairs), f"{len(pairs)} matches with depth (need {config.min_inliers})")
