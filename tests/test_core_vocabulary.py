@@ -10,11 +10,12 @@ from slamfront.core.errors import CoreError
 from slamfront.core.vocabulary import OnlineVocabulary, VocabularyThresholds, becomes_word, ratio
 
 # Seed fig. 2(a): two words w1, w2 of V_{t-1}; features P1..P3 in a tight cluster well
-# away from w1, P4 far from both. Units are the picture's; T_ND2 sits between the
+# away from w1, P4 far from both. Coordinates are the picture's; thresholds are on
+# squared distances (the vocabulary's unit for L2): T_ND2 = 4.6^2 sits between the
 # cluster's distances to w1 (4.2-4.8) and P4's (9.4).
 W1, W2 = (0.0, 0.0), (10.0, 0.0)
 P1, P2, P3, P4 = (3.0, 3.0), (3.3, 3.4), (3.6, 3.1), (5.0, 8.0)
-FIG2 = VocabularyThresholds(nndr=0.8, nd_low=0.1, nd_high=4.6)
+FIG2 = VocabularyThresholds(nndr=0.8, nd_low=0.1**2, nd_high=4.6**2)
 
 
 def _fig2_vocabulary() -> OnlineVocabulary:
@@ -35,8 +36,10 @@ def test_fig2_nndr_quantises_the_cluster_to_w1_and_greedy_gives_it_a_word() -> N
     assert greedy.order.tolist() == [3, 2, 1, 0]
     assert greedy.new_words.tolist() == [2, 3]
     assert greedy.words.tolist() == [3, 3, 3, 2]
-    # seed eq. 15: the cluster's error under greedy is far below NNDR's
-    d = np.linalg.norm
+    # seed eq. 15: the cluster's error under greedy is far below NNDR's (squared distances)
+    def d(v: object) -> float:
+        return float(np.sum(np.square(v)))
+
     assert greedy.distances[:2].mean() == pytest.approx((d(np.subtract(P1, P3)) + d(np.subtract(P2, P3))) / 2, rel=1e-5)
     assert nndr.distances[:3].mean() == pytest.approx(np.mean([d(P1), d(P2), d(P3)]), rel=1e-5)
     assert greedy.distances[:2].mean() < nndr.distances[:3].mean()
