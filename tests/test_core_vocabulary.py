@@ -173,3 +173,21 @@ def test_nearest_two_matches_brute_force(metric: str) -> None:
     assert np.all(np.isinf(one_d2)) and one_i.tolist() == [0, 0, 0]
     none = nearest_two(queries[:3], rows[:0], metric)  # type: ignore[arg-type]
     assert np.all(np.isinf(none[0])) and none[2].tolist() == [-1, -1, -1]
+
+
+def test_l2_distances_and_thresholds_are_squared() -> None:
+    """T_NNDR compares squared distances, as RTAB-Map: a plain ratio of 0.85 is 0.72 squared, below 0.8."""
+    t = VocabularyThresholds(nndr=0.8, nd_low=0.0, nd_high=np.inf)
+    vocabulary = OnlineVocabulary("l2", 1)
+    vocabulary.retain(vocabulary.update(np.array([[0.0], [20.0]], np.float32), "nndr", t).words)
+    # ND = 8.5 to word 0, NND = 11.5 to word 1: returned squared
+    feature = np.array([[8.5]], np.float32)
+    nd, nnd, word = vocabulary.nearest(feature)
+    assert nd[0] == pytest.approx(8.5**2) and nnd[0] == pytest.approx(11.5**2) and word[0] == 0
+    # a plain ratio of 0.85 (ND 9.19, NND 10.81): a word under a plain 0.8 test, not under the squared one
+    made = vocabulary.update(np.array([[9.19]], np.float32), "nndr", t)
+    assert len(made.new_words) == 0 and made.distances[0] == pytest.approx(9.19**2, rel=1e-5)
+    assert (9.19 / 10.81) > 0.8 > (9.19 / 10.81) ** 2
+    greedy = vocabulary.update(np.array([[9.19]], np.float32), "greedy", VocabularyThresholds(0.8, 1.0, 80.0))
+    assert len(greedy.new_words) == 1  # 9.19^2 = 84.5 > T_ND2 = 80: a word by distance alone
+    assert greedy.decided_by.tolist() == [1]
