@@ -283,9 +283,12 @@ def _search_scaling() -> list[list[object]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("seeds", "memory"))
+    parser.add_argument("what", nargs="?", choices=("seeds", "memory", "all"), default="all")
     args = parser.parse_args()
-    seeds() if args.what == "seeds" else memory()
+    if args.what in ("seeds", "all"):
+        seeds()
+    if args.what in ("memory", "all"):
+        memory()
 
 
 if __name__ == "__main__":

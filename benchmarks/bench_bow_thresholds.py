@@ -256,9 +256,12 @@ def _plot_sweep(gains: dict[tuple[float, float, float], float]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("derive", "sweep"))
+    parser.add_argument("what", nargs="?", choices=("derive", "sweep", "all"), default="all")
     args = parser.parse_args()
-    derive() if args.what == "derive" else sweep()
+    if args.what in ("derive", "all"):
+        derive()
+    if args.what in ("sweep", "all"):
+        sweep()
 
 
 if __name__ == "__main__":
