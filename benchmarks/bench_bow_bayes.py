@@ -1,7 +1,7 @@
 """bow_bayes: greedy vs NNDR over several world seeds, and RTAB-Map memory management on a long stream.
 
 ``seeds``: the synthetic_bow recipe's stream (2 laps of 300 frames, 320x240, SIFT 300)
-for world seeds 1, 3, 4, 5, 6, 7, 8 (seed 2 chose the recipe's descriptor and feature
+for world seeds 1 and 3-7 (seed 2 chose the recipe's descriptor and feature
 count; seeds 11-13 the thresholds' sweep), both vocabulary rules, under each scoring
 rule; mean ± sd over seeds and the paired greedy - NNDR difference. Writes
 ``results/bow_bayes.md``.
@@ -10,14 +10,15 @@ rule; mean ± sd over seeds and the paired greedy - NNDR difference. Writes
 seed 21). An unbounded run measures the detector's time per frame, to which the linear
 time model is fitted; then budgets in modelled seconds at which about 10 %, 30 % and
 60 % of the frames trigger transfers (deterministic runs) give recall and AUC against
-the budget; last, one run on the wall clock with the 30 % budget shows the per-image
-time staying flat under it. Writes ``results/bow_memory.md`` and its plot.
+the budget; last, two runs on the wall clock with the 30 % budget (RTAB-Map's word
+rule, then with ``forget_places``: one place more than entered WM leaves) show the
+per-image time staying flat under it. Writes ``results/bow_memory.md`` and its plot.
 
 Feature streams are rendered once and cached (``bow_streams.py``); every time here is
 the detector's own, rendering and feature extraction excluded.
 
 Run: .venv/bin/python benchmarks/bench_bow_bayes.py seeds    (about 15 minutes; streams cached)
-     .venv/bin/python benchmarks/bench_bow_bayes.py memory   (about 60 minutes; stream cached)
+     .venv/bin/python benchmarks/bench_bow_bayes.py memory   (about 30 minutes; stream cached)
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from slamfront.core.distances import nearest_two, pairwise  # noqa: E402
 from slamfront.report import plots  # noqa: E402
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes  # noqa: E402
 
-SEEDS = (1, 3, 4, 5, 6, 7, 8)
+SEEDS = (1, 3, 4, 5, 6, 7)
 RECIPE = {"descriptor_type": "sift", "stm_size": 10, "time_budget_s": 0.7}
 """The synthetic_bow recipe's detector settings (its 0.7 s budget is never reached here)."""
 SCORINGS = (
@@ -139,7 +140,7 @@ def memory() -> None:
     runs: dict[str, tuple[float, Run]] = {}
     for target in TARGET_SHARES:
         budget = _first_budget(modelled, target)
-        for _ in range(3):  # one prediction from the unbounded run, then secant-free corrections
+        for _ in range(2):  # one prediction from the unbounded run, then one correction
             run = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=budget, time_model="linear",
                                                **model), stream, f"budget {budget * 1000:.2f} ms")
             got = _share_transferring(run)
@@ -149,21 +150,27 @@ def memory() -> None:
             budget = _corrected(modelled, budget, got, target)
         runs[f"{target:.0%}"] = (budget, run)
         rows.append(_memory_row(f"{budget * 1000:.2f} ms (modelled)", run, stream, budget))
-    # the wall clock, with the 30 % budget: the detector's own measured time decides
+    # the wall clock, with the 30 % budget: the detector's own measured time decides; RTAB-Map's word rule
+    # (the time hovers at the budget), then with forget_places (one place more leaves: it settles under)
     wall_budget = runs["30%"][0]
-    load_wall = os.getloadavg()
-    wall = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=wall_budget, time_model="wall"),
-                        stream, f"wall clock {wall_budget * 1000:.2f} ms")
-    load_after = os.getloadavg()
-    rows.append(_memory_row(f"{wall_budget * 1000:.2f} ms (wall clock)", wall, stream, wall_budget))
-    figure = _memory_plot(unbounded, runs["30%"][1], wall, wall_budget)
-    ms = np.array([s.processing_seconds for s in wall.statistics[-LAST:]]) * 1000
-    verdict = (f"Wall-clock run, budget {wall_budget * 1000:.2f} ms: {_share_transferring(wall):.1%} of frames "
-               f"trigger transfers; over the last {LAST} frames the detector's time per image has median "
-               f"{np.median(ms):.2f} ms ({np.median(ms) / (wall_budget * 1000):.2f} x the budget) and p99 "
-               f"{np.percentile(ms, 99):.2f} ms ({np.percentile(ms, 99) / (wall_budget * 1000):.2f} x). "
-               f"Load average (1/5/15 min) before the benchmark {_load(load_before)}, before the wall-clock run "
-               f"{_load(load_wall)}, after it {_load(load_after)} (2 cores shared with other work).")
+    verdicts, walls = [], {}
+    for forget_places in (False, True):
+        label = "wall clock" + (", forget_places" if forget_places else "")
+        load_wall = os.getloadavg()
+        wall = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=wall_budget, time_model="wall",
+                                            forget_places=forget_places), stream, f"{label} {wall_budget * 1000:.2f} ms")
+        walls[forget_places] = wall
+        rows.append(_memory_row(f"{wall_budget * 1000:.2f} ms ({label})", wall, stream, wall_budget))
+        ms = np.array([s.processing_seconds for s in wall.statistics[-LAST:]]) * 1000
+        verdicts.append(
+            f"- {label}, budget {wall_budget * 1000:.2f} ms: {_share_transferring(wall):.1%} of frames trigger "
+            f"transfers; over the last {LAST} frames the detector's time per image has median {np.median(ms):.2f} ms "
+            f"({np.median(ms) / (wall_budget * 1000):.2f} x the budget) and p99 {np.percentile(ms, 99):.2f} ms "
+            f"({np.percentile(ms, 99) / (wall_budget * 1000):.2f} x). Load average (1/5/15 min) before this run "
+            f"{_load(load_wall)}, after it {_load(os.getloadavg())}.")
+    figure = _memory_plot(unbounded, runs["30%"][1], walls[False], wall_budget)
+    verdict = "\n".join([*verdicts, f"- Load average before the benchmark {_load(load_before)} (2 cores shared "
+                                     "with other work)."])
     body = "\n\n".join([
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
         f"{np.__version__}. Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
