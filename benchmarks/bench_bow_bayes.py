@@ -7,12 +7,12 @@ rule; mean ± sd over seeds and the paired greedy - NNDR difference. Writes
 ``results/bow_bayes.md``.
 
 ``memory``: a 10,000-frame stream (10 laps of 1,000 frames, 160x120, ORB 150, world
-seed 21). An unbounded run measures the detector's time per frame, to which the linear
-time model is fitted; then budgets in modelled seconds at which about 10 %, 30 % and
-60 % of the frames trigger transfers (deterministic runs) give recall and AUC against
-the budget; last, two runs on the wall clock with the 30 % budget (RTAB-Map's word
-rule, then with ``forget_places``: one place more than entered WM leaves) show the
-per-image time staying flat under it. Writes ``results/bow_memory.md`` and its plot.
+seed 21). An unbounded run over its first 2,000 frames measures the detector's time per
+frame, to which the linear time model is fitted; then budgets in modelled seconds at
+which about 10 %, 30 % and 60 % of those frames trigger transfers (deterministic runs)
+give recall and AUC against the budget; last, two runs over all 10,000 frames on the
+wall clock with a 30 ms budget (RTAB-Map's word rule, then with ``forget_places``: one
+place more than entered WM leaves) show the per-image time staying flat under it. Writes ``results/bow_memory.md`` and its plot.
 
 Feature streams are rendered once and cached (``bow_streams.py``); every time here is
 the detector's own, rendering and feature extraction excluded.
@@ -52,6 +52,10 @@ SCORINGS = (
 LONG = StreamSpec(21, laps=10, frames_per_lap=1000, route_m=1000, width=160, height=120, descriptor="orb",
                   max_features=150)
 TARGET_SHARES = (0.10, 0.30, 0.60)
+SHORT = 2000
+"""Frames of the budget sweep (the stream's first two laps)."""
+WALL_BUDGET_S = 0.03
+"""The wall-clock budget of the 10,000-frame runs."""
 LAST = 1000
 
 
@@ -131,46 +135,47 @@ def _vocabulary_columns(run: Run, into: dict[str, list[float]]) -> None:
 
 def memory() -> None:
     stream = synthetic_stream(LONG)
+    short = _prefix(stream, SHORT)
     load_before = os.getloadavg()
-    unbounded = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=0.0), stream, "unbounded")
+    unbounded = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=0.0), short, "unbounded")
     model, fit = _fit_time_model(unbounded)
     print(f"time model: {model}  R^2 {fit:.3f}", flush=True)
     modelled = np.array([_modelled(model, s) for s in unbounded.statistics])
-    rows = [_memory_row("unbounded", unbounded, stream, float("nan"))]
-    runs: dict[str, tuple[float, Run]] = {}
+    rows = [_memory_row("unbounded", unbounded, short, float("nan"))]
     for target in TARGET_SHARES:
         budget = _first_budget(modelled, target)
-        for _ in range(2):  # one prediction from the unbounded run, then one correction
+        for attempt in range(2):  # one prediction from the unbounded run, then one correction if far off
             run = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=budget, time_model="linear",
-                                               **model), stream, f"budget {budget * 1000:.2f} ms")
+                                               **model), short, f"budget {budget * 1000:.2f} ms")
             got = _share_transferring(run)
             print(f"target {target:.0%}: budget {budget * 1000:.3f} ms -> {got:.1%} of frames transfer", flush=True)
-            if abs(got - target) <= 0.04:
+            if abs(got - target) <= 0.05 or attempt == 1:
                 break
             budget = _corrected(modelled, budget, got, target)
-        runs[f"{target:.0%}"] = (budget, run)
-        rows.append(_memory_row(f"{budget * 1000:.2f} ms (modelled)", run, stream, budget))
-    # the wall clock, with the 30 % budget: the detector's own measured time decides; RTAB-Map's word rule
-    # (the time hovers at the budget), then with forget_places (one place more leaves: it settles under)
-    wall_budget = runs["30%"][0]
-    verdicts, walls = [], {}
+        rows.append(_memory_row(f"{budget * 1000:.2f} ms (modelled)", run, short, budget))
+    # the wall clock on all 10,000 frames: the detector's own measured time decides; RTAB-Map's word
+    # rule (the time hovers at the budget), then with forget_places (one place more leaves: it settles under)
+    wall_rows, verdicts, walls = [], [], {}
     for forget_places in (False, True):
         label = "wall clock" + (", forget_places" if forget_places else "")
         load_wall = os.getloadavg()
-        wall = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=wall_budget, time_model="wall",
-                                            forget_places=forget_places), stream, f"{label} {wall_budget * 1000:.2f} ms")
+        wall = run_detector(BowBayes.Config(descriptor_type="orb", time_budget_s=WALL_BUDGET_S, time_model="wall",
+                                            forget_places=forget_places), stream, f"{label} {WALL_BUDGET_S * 1000:.0f} ms")
         walls[forget_places] = wall
-        rows.append(_memory_row(f"{wall_budget * 1000:.2f} ms ({label})", wall, stream, wall_budget))
+        wall_rows.append(_memory_row(f"{WALL_BUDGET_S * 1000:.0f} ms ({label})", wall, stream, WALL_BUDGET_S))
         ms = np.array([s.processing_seconds for s in wall.statistics[-LAST:]]) * 1000
         verdicts.append(
-            f"- {label}, budget {wall_budget * 1000:.2f} ms: {_share_transferring(wall):.1%} of frames trigger "
-            f"transfers; over the last {LAST} frames the detector's time per image has median {np.median(ms):.2f} ms "
-            f"({np.median(ms) / (wall_budget * 1000):.2f} x the budget) and p99 {np.percentile(ms, 99):.2f} ms "
-            f"({np.percentile(ms, 99) / (wall_budget * 1000):.2f} x). Load average (1/5/15 min) before this run "
-            f"{_load(load_wall)}, after it {_load(os.getloadavg())}.")
-    figure = _memory_plot(unbounded, runs["30%"][1], walls[False], wall_budget)
+            f"- {label}, budget {WALL_BUDGET_S * 1000:.0f} ms: {_share_transferring(wall):.1%} of the "
+            f"{len(wall.statistics)} frames trigger transfers; over the last {LAST} frames the detector's time per "
+            f"image has median {np.median(ms):.2f} ms ({np.median(ms) / (WALL_BUDGET_S * 1000):.2f} x the budget) "
+            f"and p99 {np.percentile(ms, 99):.2f} ms ({np.percentile(ms, 99) / (WALL_BUDGET_S * 1000):.2f} x). "
+            f"Load average (1/5/15 min) before this run {_load(load_wall)}, after it {_load(os.getloadavg())}.")
+    figure = _memory_plot(unbounded, walls[False], walls[True], WALL_BUDGET_S)
     verdict = "\n".join([*verdicts, f"- Load average before the benchmark {_load(load_before)} (2 cores shared "
                                      "with other work)."])
+    headers = ["budget", "frames triggering transfers", "R@100%P", "AUC-PR", "places transferred", "max WM",
+               "words searched at the end", "median ms (measured)", "p99 ms (measured)", "median ms (modelled)",
+               "p99 ms (modelled)"]
     body = "\n\n".join([
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
         f"{np.__version__}. Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
@@ -183,17 +188,26 @@ def memory() -> None:
         f"+ {model['model_comparison_s']:.3g} s per feature-word comparison + {model['model_place_s']:.3g} s per WM "
         f"place (R^2 = {fit:.3f}). The modelled runs compare the budget with these seconds, so they are "
         "deterministic; the budgets were set so that about 10 %, 30 % and 60 % of the frames trigger transfers.",
-        "## Recall and AUC against the budget (last columns: time over the last 1,000 frames)",
-        table(["budget", "frames triggering transfers", "R@100%P", "AUC-PR", "places transferred", "max WM",
-               "words searched at the end", "median ms (measured)", "p99 ms (measured)", "median ms (modelled)",
-               "p99 ms (modelled)"], rows),
-        "## Per-image time under the budget",
+        f"## Recall and AUC against the budget: the first {SHORT:,} frames (2 laps), deterministic",
+        f"The unbounded search grows with the vocabulary (about 54 words a frame), so an unbounded run over all "
+        f"10,000 frames would take hours on this machine; budgets that leave 70-90 % of a stream unbounded cost "
+        f"almost as much. The budget sweep therefore runs on the first {SHORT:,} frames (the second lap revisits "
+        "the first). Time columns: the last 1,000 frames.",
+        table(headers, rows),
+        f"## Per-image time under a wall-clock budget over all {len(stream.descriptors):,} frames",
+        table(headers, wall_rows),
         verdict,
         f"![time and memory]({figure})",
         "## Nearest-word search, 150 queries (exact): ours vs numpy brute force (pairwise + sort)",
         table(["metric", "words", "ours ms", "baseline ms", "speed-up"], _search_scaling()),
     ])
     publish("bow_memory", "bow_bayes: RTAB-Map memory management on a 10,000-frame stream", body)
+
+
+def _prefix(stream: Stream, frames: int) -> Stream:
+    """The stream's first ``frames`` frames, with the ground truth of the queries among them."""
+    truth = stream.truth.subset(stream.truth.queries < frames)
+    return Stream(stream.spec, stream.descriptors[:frames], stream.metric, truth, 0.0)
 
 
 def _modelled(model: dict[str, float], s: object) -> float:
@@ -248,19 +262,20 @@ def _memory_row(label: str, run: Run, stream: Stream, budget: float) -> list[obj
             float(np.percentile(modelled, 99)) if np.isfinite(modelled).all() else ""]
 
 
-def _memory_plot(unbounded: Run, modelled: Run, wall: Run, budget: float) -> str:
+def _memory_plot(unbounded: Run, wall: Run, settled: Run, budget: float) -> str:
     def series(run: Run, field: str, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         return np.arange(len(run.statistics)), np.array([getattr(s, field) for s in run.statistics]) * scale
 
     path = RESULTS / "bow_memory.png"
     plots.series_panels(
         [
-            ("ms per image", {"unbounded": series(unbounded, "processing_seconds", 1000.0),
+            ("ms per image", {"unbounded (first 2 laps)": series(unbounded, "processing_seconds", 1000.0),
                               "wall-clock budget": series(wall, "processing_seconds", 1000.0),
-                              "modelled budget (modelled ms)": series(modelled, "modelled_seconds", 1000.0)},
+                              "wall-clock budget, forget_places": series(settled, "processing_seconds", 1000.0)},
              {"budget": budget * 1000.0}),
-            ("places in WM", {"unbounded": series(unbounded, "wm_size"), "wall-clock budget": series(wall, "wm_size"),
-                              "modelled budget": series(modelled, "wm_size")}, {}),
+            ("places in WM", {"unbounded (first 2 laps)": series(unbounded, "wm_size"),
+                              "wall-clock budget": series(wall, "wm_size"),
+                              "wall-clock budget, forget_places": series(settled, "wm_size")}, {}),
         ],
         path, "bow_bayes on 10,000 frames: time per image and working memory (Wang et al. 2017, fig. 9)",
     )

@@ -1,7 +1,7 @@
 """The discrete Bayes filter over loop-closure hypotheses of Wang et al. 2017 (§1.3, after RTAB-Map).
 
 The state S_t is -1 ("no loop at time t") or the id i of a place in working memory
-("image t closes a loop with place i"). Each step (seed eqs. 6-12):
+("image t closes a loop with place i"). Each step (Wang et al. 2017, eqs. 6-12):
 
 - **prediction** (eqs. 10-11) from the previous posterior:
   ``p(-1 | -1) = 0.9``, ``p(-1 | j) = 0.1``, ``p(i | -1) = 0.1 / M`` (M = number of
@@ -84,7 +84,7 @@ class Likelihood:
 
 
 def likelihood(similarities: np.ndarray, ignore_zero: bool = False) -> Likelihood:
-    """Seed eqs. 8-9 for the similarities (M,) of the current image to each hypothesis."""
+    """Wang et al. 2017 eqs. 8-9 for the similarities (M,) of the current image to each hypothesis."""
     sims = np.asarray(similarities, dtype=np.float64)
     values = sims[sims > 0] if ignore_zero else sims
     if len(values) == 0:
@@ -146,7 +146,7 @@ class BayesFilter:
         self._no_loop = 1.0
 
     def predict(self, hypotheses: np.ndarray) -> tuple[np.ndarray, float]:
-        """Seed eqs. 10-11: the prior over ``hypotheses`` (sorted place ids) and over -1."""
+        """Wang et al. 2017 eqs. 10-11: the prior over ``hypotheses`` (sorted place ids) and over -1."""
         p = self.parameters
         hypotheses = np.asarray(hypotheses, dtype=np.int64)
         if len(hypotheses) > 1 and np.any(np.diff(hypotheses) <= 0):
