@@ -22,9 +22,10 @@ binary ones.
    paper's (see the thresholds module for why).
 
 ``sweep`` runs the detector with both vocabulary rules over T_ND2 and the band
-T_ND1 / T_ND2 at T_NNDR 0.8, then T_NNDR 0.7 / 0.9 at the derived thresholds, on synthetic streams (world seeds 11, 12, 13: none is in a reported result) and
-tables where the greedy rule gains over NNDR, with the share of features the ratio
-test decided.
+T_ND1 / T_ND2 at T_NNDR 0.8, then T_NNDR 0.7 / 0.9 at the derived thresholds, on
+synthetic streams (world seeds 11, 12, 13: none is in a reported result), and tables
+where the greedy rule gains over NNDR, with the share of features the ratio test
+decided.
 
 Run: .venv/bin/python benchmarks/bench_bow_thresholds.py derive   (about 2 minutes)
      .venv/bin/python benchmarks/bench_bow_thresholds.py sweep    (about 10 minutes on an idle machine; streams cached)
