@@ -65,6 +65,9 @@ WALL_BUDGET_S = 0.03
 FLAT_BUDGET_S = 0.005
 """The modelled budget of ``flat`` (the detector's default time model)."""
 LAST = 1000
+MEMORY_HEADERS = ("budget", "frames triggering transfers", "R@100%P", "AUC-PR", "places transferred", "max WM",
+                  "words searched at the end", "median ms (measured)", "p99 ms (measured)", "median ms (modelled)",
+                  "p99 ms (modelled)")
 
 
 # --- seeds ------------------------------------------------------------------------------
@@ -171,19 +174,12 @@ def memory() -> None:
                                             forget_places=forget_places), stream, f"{label} {WALL_BUDGET_S * 1000:.0f} ms")
         walls[forget_places] = wall
         wall_rows.append(_memory_row(f"{WALL_BUDGET_S * 1000:.0f} ms ({label})", wall, stream, WALL_BUDGET_S))
-        ms = np.array([s.processing_seconds for s in wall.statistics[-LAST:]]) * 1000
         verdicts.append(
-            f"- {label}, budget {WALL_BUDGET_S * 1000:.0f} ms: {_share_transferring(wall):.1%} of the "
-            f"{len(wall.statistics)} frames trigger transfers; over the last {LAST} frames the detector's time per "
-            f"image has median {np.median(ms):.2f} ms ({np.median(ms) / (WALL_BUDGET_S * 1000):.2f} x the budget) "
-            f"and p99 {np.percentile(ms, 99):.2f} ms ({np.percentile(ms, 99) / (WALL_BUDGET_S * 1000):.2f} x). "
-            f"Load average (1/5/15 min) before this run {_load(load_wall)}, after it {_load(os.getloadavg())}.")
+            _time_line(label, wall, WALL_BUDGET_S, "processing_seconds", "the detector's time")
+            + f" Load average (1/5/15 min) before this run {_load(load_wall)}, after it {_load(os.getloadavg())}.")
     figure = _memory_plot(unbounded, walls[False], walls[True], WALL_BUDGET_S)
     verdict = "\n".join([*verdicts, f"- Load average before the benchmark {_load(load_before)} (2 cores shared "
                                      "with other work)."])
-    headers = ["budget", "frames triggering transfers", "R@100%P", "AUC-PR", "places transferred", "max WM",
-               "words searched at the end", "median ms (measured)", "p99 ms (measured)", "median ms (modelled)",
-               "p99 ms (modelled)"]
     body = "\n\n".join([
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
         f"{np.__version__}. Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
@@ -201,9 +197,9 @@ def memory() -> None:
         f"10,000 frames would take hours on this machine; budgets that leave 70-90 % of a stream unbounded cost "
         f"almost as much. The budget sweep therefore runs on the first {SHORT:,} frames (the second lap revisits "
         "the first). Time columns: the last 1,000 frames.",
-        table(headers, rows),
+        table(MEMORY_HEADERS, rows),
         f"## Per-image time under a wall-clock budget over all {len(stream.descriptors):,} frames",
-        table(headers, wall_rows),
+        table(MEMORY_HEADERS, wall_rows),
         verdict,
         f"![time and memory]({figure})",
         "## Nearest-word search, 150 queries (exact): ours vs numpy brute force (pairwise + sort)",
@@ -222,16 +218,8 @@ def flat() -> None:
         label = "modelled" + (", forget_places" if forget_places else "")
         run = run_detector(config, stream, f"{label} {FLAT_BUDGET_S * 1000:.0f} ms")
         rows.append(_memory_row(f"{FLAT_BUDGET_S * 1000:.0f} ms ({label})", run, stream, FLAT_BUDGET_S))
-        modelled = np.array([s.modelled_seconds for s in run.statistics[-LAST:]]) * 1000
-        verdicts.append(
-            f"- {label}: {_share_transferring(run):.1%} of the {len(run.statistics)} frames trigger transfers; over "
-            f"the last {LAST} frames the modelled time per image has median {np.median(modelled):.2f} ms "
-            f"({np.median(modelled) / (FLAT_BUDGET_S * 1000):.2f} x the budget) and p99 "
-            f"{np.percentile(modelled, 99):.2f} ms ({np.percentile(modelled, 99) / (FLAT_BUDGET_S * 1000):.2f} x).")
+        verdicts.append(_time_line(label, run, FLAT_BUDGET_S, "modelled_seconds", "the modelled time"))
     c = BowBayes.Config()
-    headers = ["budget", "frames triggering transfers", "R@100%P", "AUC-PR", "places transferred", "max WM",
-               "words searched at the end", "median ms (measured)", "p99 ms (measured)", "median ms (modelled)",
-               "p99 ms (modelled)"]
     body = "\n\n".join([
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. The stream of "
         f"``memory`` (world seed {LONG.seed}, {len(stream.descriptors)} frames, ORB), the detector's default linear "
@@ -239,10 +227,19 @@ def flat() -> None:
         f"{c.model_place_s:g} s per WM place) against a {FLAT_BUDGET_S * 1000:.0f} ms budget: the transfers, and so "
         "every number but the measured times, are the same on any machine under any load. Load average at the end "
         f"{_load(os.getloadavg())}.",
-        table(headers, rows),
+        table(MEMORY_HEADERS, rows),
         "\n".join(verdicts),
     ])
     publish("bow_memory_flat", "bow_bayes: per-image time under a modelled budget over 10,000 frames", body)
+
+
+def _time_line(label: str, run: Run, budget: float, field: str, what: str) -> str:
+    """One line: the share of frames transferring, and the median / p99 of ``field`` over the last frames."""
+    ms = np.array([getattr(s, field) for s in run.statistics[-LAST:]]) * 1000
+    median, p99, limit = float(np.median(ms)), float(np.percentile(ms, 99)), budget * 1000
+    return (f"- {label}, budget {limit:.0f} ms: {_share_transferring(run):.1%} of the {len(run.statistics)} frames "
+            f"trigger transfers; over the last {LAST} frames {what} per image has median {median:.2f} ms "
+            f"({median / limit:.2f} x the budget) and p99 {p99:.2f} ms ({p99 / limit:.2f} x).")
 
 
 def _prefix(stream: Stream, frames: int) -> Stream:
