@@ -104,9 +104,8 @@ def test_a_modelled_budget_bounds_the_searched_words_on_a_long_stream() -> None:
     within = budget / (per_comparison * 40)  # words one frame of 40 features may search within budget
     assert max(searched) <= within + max(arrivals)
     assert np.max(modelled) <= budget + per_comparison * 40 * max(arrivals)
-    assert max(searched) > within  # the budget binds
-    over = modelled[int(np.argmax(np.array(modelled) > budget)):]  # from the first frame over budget on
-    assert np.median(over) <= budget  # held under it, not hovering at it
+    assert max(searched) >= 0.99 * within  # the budget binds
+    assert np.max(modelled) <= budget  # held under it (every frame has 40 features: the prediction is exact)
     assert transferred > 500 and retrieved > 0
     assert detector.statistics()["n_places_transferred"] == transferred
     # the same stream gives the same transfers: the model does not read the clock

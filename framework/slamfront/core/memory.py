@@ -22,10 +22,11 @@ during the image (the image's new words and those of places retrieved from LTM).
 That rule alone keeps the searched vocabulary, which is what the time grows with, from
 growing while the budget is exceeded, but does not bring it back under: the time
 hovers at the budget, half the images over it. RTAB-Map means the budget as a limit
-(Labbé & Michaud 2013: "the time required to process new observations is kept under
-a fixed limit"), so a caller that can *predict* the time of the coming images from
-WM's size (``predict``, e.g. a :class:`LinearTimeModel` of searched words and WM
-places) has places keep leaving until the prediction is within the budget too.
+(Labbé & Michaud 2013: the time to process new observations is kept under a fixed
+limit), so a caller that can *predict* the next image's time from WM's size
+(``predict``, e.g. a :class:`LinearTimeModel` of searched words and WM places) also
+transfers when the prediction is over the budget, before the image is, and places keep
+leaving until the prediction is within it.
 ``forget_places: true`` also transfers at least one place more than entered WM during
 the image (RTAB-Map's rule without an incremental vocabulary). A place cap
 (``max_working_memory``) transfers in the same order until WM holds no more places
@@ -44,9 +45,9 @@ place that entered WM longest ago, then the oldest id. Never transferred:
 Bound: with a time that grows with the searched words, an image over budget leaves no
 more words searched than it found, and one within budget adds at most its arrivals, so
 the words searched never exceed those that fit the budget plus one image's arrivals
-(provided WM holds enough places that are not immune or recent). With ``predict`` an
-image over budget leaves WM predicted within it, so only the images whose arrivals
-outgrow the prediction's margin go over, by at most one image's arrivals.
+(provided WM holds enough places that are not immune or recent). With ``predict`` every
+image leaves WM predicted within the budget, so an image goes over only when the
+prediction was wrong.
 """
 
 from __future__ import annotations
@@ -265,7 +266,7 @@ class MemoryManager:
         self, elapsed_s: float, words_arrived: int, immune: set[int], release: Callable[[int], int],
         places_entered: int = 0, predict: Callable[[], float] | None = None,
     ) -> list[int]:
-        """Move places from WM to LTM if this image was over budget or WM is over its cap.
+        """Move places from WM to LTM if this image (or the next, predicted) is over budget or WM is over its cap.
 
         :param elapsed_s: how long the image took (measured, or modelled).
         :param words_arrived: words that joined the nearest-word search during the image.
@@ -274,24 +275,27 @@ class MemoryManager:
             words left the search with it (those no place still in STM or WM uses).
         :param places_entered: places that entered WM during the image (from STM or LTM);
             with ``forget_places``, at least one more leaves.
-        :param predict: the predicted seconds of the coming images with WM as it is now,
-            called again after each transfer; over budget, places also keep leaving
-            until it is within the budget (or nothing transferable is left).
+        :param predict: the predicted seconds of the next image with WM as it is now,
+            called again after each transfer: places also leave when it is over the
+            budget, until it is within it (or nothing transferable is left).
         :returns: the transferred places, in transfer order.
         """
         p = self.parameters
-        over_budget = p.time_budget_s > 0 and elapsed_s > p.time_budget_s
+        bounded = p.time_budget_s > 0
+        over_budget = bounded and elapsed_s > p.time_budget_s
+
+        def predicted_within() -> bool:
+            return not bounded or predict is None or predict() <= p.time_budget_s
+
         over_cap = p.max_working_memory > 0 and len(self._wm) > p.max_working_memory
-        if not over_budget and not over_cap:
+        if not over_budget and not over_cap and predicted_within():
             return []
         transferred: list[int] = []
         words_left = 0
         places = places_entered + 1 if p.forget_places else 0
         for place in self.transfer_order(immune):
-            budget_done = not over_budget or (
-                words_left >= words_arrived and len(transferred) >= places
-                and (predict is None or predict() <= p.time_budget_s)
-            )
+            rule_done = not over_budget or (words_left >= words_arrived and len(transferred) >= places)
+            budget_done = rule_done and predicted_within()
             cap_done = p.max_working_memory == 0 or len(self._wm) <= p.max_working_memory
             if budget_done and cap_done:
                 break

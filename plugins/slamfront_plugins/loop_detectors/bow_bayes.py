@@ -89,8 +89,8 @@ class BowBayes(LoopDetector):
     ``p(no loop) < T_loop``. Memory management (STM / WM / LTM, RTAB-Map's) keeps the
     newest places out of the search, moves the lowest-weighted, oldest places out of it
     when a frame takes longer than the time budget (measured, or modelled for
-    reproducible runs) until as many words left the search as arrived and the time model
-    predicts the coming frames within the budget, hands a place's
+    reproducible runs) until as many words left the search as arrived, and whenever the
+    time model predicts the next frame over the budget until it does not, hands a place's
     weight to the newer place of an accepted loop, and brings the neighbours of the
     best hypothesis back from LTM.
 
@@ -158,8 +158,8 @@ class BowBayes(LoopDetector):
         )
         max_working_memory: int = Field(0, ge=0, description="also cap WM at this many places (0 = no cap)")
         forget_places: bool = Field(
-            False, description="over budget, also transfer one place more than entered WM (RTAB-Map without an "
-            "incremental vocabulary): the time settles under the budget instead of at it"
+            False, description="over budget, also transfer one place more than entered WM (RTAB-Map's rule without "
+            "an incremental vocabulary)"
         )
         recent_ratio: float = Field(
             0.2, ge=0, le=1, description="places made since the last accepted loop stay in WM while fewer than this "
@@ -204,8 +204,6 @@ class BowBayes(LoopDetector):
         )
         self._ratios: deque[float] = deque(maxlen=max(c.calibration_frames, 1))
         self._most_features = 0
-        self._arrived = 0
-        self._frames = 0
         self.clock: Callable[[], float] = time.perf_counter
         """Seconds, for the time budget; tests swap in a modelled clock to be deterministic."""
 
@@ -431,45 +429,43 @@ class BowBayes(LoopDetector):
     def _transfer(self, cost: _Cost, active_at_start: int, immune: set[int]) -> list[int]:
         """RTAB-Map's transfer after the frame, with the time it took so far (or the model's).
 
-        Over budget, places leave until as many words left as arrived (RTAB-Map) *and*
-        the predicted time of the frame after next is within the budget: the next frame
-        searches WM as it is now plus one place from the STM, the one after also the next
-        frame's new words (estimated by the mean arrivals per frame so far), and either may
-        have as many features as the richest frame so far. Predicting only the next frame
-        would let every other frame go over again.
+        Over budget, places leave until as many words left as arrived (RTAB-Map); and
+        whenever the next frame's predicted time is over the budget, until it is within:
+        the next frame searches the words searchable now and WM's places plus the one
+        leaving the STM, and may have as many features as the richest frame so far.
         """
         elapsed = self.clock() - cost.started - cost.other_seconds
         wall = self.config.time_model == "wall"
         compared = elapsed if wall else cost.modelled
         vocabularies = self._vocabularies
         arrived = 0 if vocabularies is None else max(0, vocabularies.main.n_active - active_at_start)
-        self._arrived += arrived
-        self._frames += 1
         self._most_features = max(self._most_features, cost.features)
-        if wall and cost.features > 0 and self.config.calibration_frames > 0:
-            self._calibrate(cost, elapsed)
-        scale = float(np.median(self._ratios)) if wall and self._ratios and self._samples is None else 1.0
-        growth = self._arrived / self._frames
+        scale = 1.0
 
         def predict() -> float:
-            words = (0 if vocabularies is None else vocabularies.main.n_active) + growth
+            words = 0 if vocabularies is None else vocabularies.main.n_active
             return scale * self._predictor.seconds(self._most_features, words, self._memory.n_wm + 1)
+
+        if wall and cost.features > 0 and self.config.calibration_frames > 0:
+            self._calibrate(cost, elapsed, max(elapsed, predict()) > self.config.time_budget_s > 0)
+            scale = float(np.median(self._ratios)) if self._ratios else 1.0
 
         transferred = self._memory.transfer(compared, arrived, immune, self._to_long_term, self._entered, predict)
         self._counts["transferred"] += len(transferred)
         return transferred
 
-    def _calibrate(self, cost: _Cost, elapsed: float) -> None:
+    def _calibrate(self, cost: _Cost, elapsed: float, binding: bool) -> None:
         """Fit the time model to this machine's measured times, then track its load.
 
-        The frames before the first one over budget span the sizes the predictions are
-        needed for (up to the budget), so the model is fitted to them then; afterwards the
-        median measured/predicted ratio of recent frames scales the prediction (a busier
-        machine makes every frame slower). Measured times only, never ground truth.
+        The frames before the budget first binds (this frame, or the next one as
+        predicted, over it) span the sizes the predictions are needed for, so the model is
+        fitted to them then; afterwards the median measured/predicted ratio of recent
+        frames scales the prediction (a busier machine makes every frame slower).
+        Measured times only, never ground truth.
         """
         if self._samples is not None:
             self._samples.append((cost.features, cost.words, cost.places, elapsed))
-            if len(self._samples) < self.config.calibration_frames or elapsed <= self.config.time_budget_s:
+            if len(self._samples) < self.config.calibration_frames or not binding:
                 return
             features, words, places, seconds = (np.array(column) for column in zip(*self._samples))
             self._predictor, _ = LinearTimeModel.fit(features, words, places, seconds)
