@@ -200,7 +200,7 @@ class BowBayes(LoopDetector):
         # predicting the coming frames' time (see _transfer)
         self._predictor = self._time_model
         self._samples: list[tuple[int, int, int, float]] | None = (
-            [] if c.time_model == "wall" and c.calibration_frames > 0 else None
+            [] if c.time_model == "wall" and c.calibration_frames > 0 and c.time_budget_s > 0 else None
         )
         self._ratios: deque[float] = deque(maxlen=max(c.calibration_frames, 1))
         self._most_features = 0
@@ -446,7 +446,7 @@ class BowBayes(LoopDetector):
             words = 0 if vocabularies is None else vocabularies.main.n_active
             return scale * self._predictor.seconds(self._most_features, words, self._memory.n_wm + 1)
 
-        if wall and cost.features > 0 and self.config.calibration_frames > 0:
+        if wall and cost.features > 0 and self.config.calibration_frames > 0 and self.config.time_budget_s > 0:
             self._calibrate(cost, elapsed, max(elapsed, predict()) > self.config.time_budget_s > 0)
             scale = float(np.median(self._ratios)) if self._ratios else 1.0
 
