@@ -192,9 +192,9 @@ def _setting(stream: Stream) -> str:
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
         f"{np.__version__}. Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
         "1,000, day/dusk alternating, 160x120), ORB (150 features), greedy vocabulary with the derived thresholds, "
-        "T_sim 0.2, STM 10, RTAB-Map forgetting (until as many words left the search as arrived and the time "
-        "model predicts the frame after next within the budget), recent places protected (0.2 of WM), weight "
-        "handoff, retrieval of 2 neighbours. Merged frames searched, place scoring. Times are the detector's own; "
+        "T_sim 0.2, STM 10, RTAB-Map forgetting (until as many words left the search as arrived, and whenever the "
+        "time model predicts the next frame over the budget until it does not), recent places protected (0.2 of "
+        "WM), weight handoff, retrieval of 2 neighbours. Merged frames searched, place scoring. Times are the detector's own; "
         "rendering and ORB are excluded (features cached)."
     )
 
