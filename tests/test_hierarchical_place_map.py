@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamfront.core.vptree import brute_force_knn
 from slamfront import Frame, StageInputs
+from slamfront.core.vptree import brute_force_knn
 from slamfront.messages import Features, PlaceAssignment
 from slamfront_plugins.place_maps.hierarchical import (
     HierarchicalPlaceMap,

@@ -480,7 +480,7 @@ class HierarchicalSequence(LoopDetector):
         if c.refine and len(searched) > c.refine:
             speed = np.asarray([min(max(1.0, c.vmin), c.vmax)])
             screened = []
-            for k, (t, m, source) in enumerate(searched):
+            for k, (t, m, _) in enumerate(searched):
                 found = best_trajectory(self._pairs, rows[-c.screen_frames:], t, m, c.anchor_slack, speed, n_map,
                                         map_informative)
                 if found is not None:
