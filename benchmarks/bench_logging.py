@@ -2,7 +2,7 @@
 the speed of replay and of the log tools, for any recipe.
 
 Run: .venv/bin/python benchmarks/bench_logging.py [RECIPE] [--max-frames N] [--set k=v ...]
-[--variants default,no-images,...] (default: the demo recipe and every variant; for the
+[--variants default,no-images,...] (default: the paired_demo recipe and every variant; for the
 Nordland hierarchical run: `nordland_hsl --variants default,no-images`).
 Writes results/logging.md (results/logging_<recipe>.md for another recipe).
 """
@@ -54,7 +54,7 @@ def timed(work) -> float:  # type: ignore[no-untyped-def]
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recipe", nargs="?", default="demo")
+    parser.add_argument("recipe", nargs="?", default="paired_demo")
     parser.add_argument("--max-frames", type=int)
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument(
@@ -120,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "(`slamfront replay --help`): where the log keeps exact pixels (PNG at full width, as the Nordland recipes log them) "
         "that is the descriptor, so the replay costs about what the run did.",
     ])
-    name = "logging" if args.recipe == "demo" else f"logging_{Path(args.recipe).stem}"
+    name = "logging" if args.recipe == "paired_demo" else f"logging_{Path(args.recipe).stem}"
     publish(name, f"Logging benchmark ({args.recipe})", body)
 
 

@@ -1,4 +1,4 @@
-"""Runtime costs: rendering the synthetic world, the demo pipeline, and logging.
+"""Runtime costs: rendering the synthetic world, the paired_demo pipeline, and logging.
 
 Run: .venv/bin/python benchmarks/bench_runtime.py
 """
@@ -43,7 +43,7 @@ def pipeline_runs() -> tuple[list[list[object]], dict[str, float]]:
         ("images on (jpeg, 320 px)", []),
         ("images on (png, lossless)", ["log.image_format=png"]),
     ):
-        recipe, path = load_recipe("demo", overrides)
+        recipe, path = load_recipe("paired_demo", overrides)
         with tempfile.TemporaryDirectory() as out:
             result = run_pipeline(build_pipeline(recipe, str(path)), str(path), Path(out), progress=False)
             metrics = result.metrics
@@ -67,7 +67,7 @@ def main() -> None:
         f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}.",
         "## Synthetic world rendering (one core for shading, Open3D ray casting on all)",
         table(["image", "frames/s", "ms/frame", "time vs 160x120"], render),
-        "## Demo recipe (400 + 400 frames), whole run incl. rendering",
+        "## paired_demo recipe (400 + 400 frames), whole run incl. rendering",
         table(["log setting", "seconds", "frames/s", "log KiB/frame", "time vs images off"], runs),
         "## Per-stage latency (last run)",
         table(["stage", "median ms", "p99 ms", "total s"], extra["stages"]),

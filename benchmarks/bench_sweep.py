@@ -32,7 +32,7 @@ from slamfront.campaign.task import RunTask  # noqa: E402
 RUNS = 16
 SWEEP = {
     "name": "bench16",
-    "recipe": "demo",
+    "recipe": "paired_demo",
     "set": {"source.params.frames_per_traversal": 100, "source.params.route_length_m": 200, "log.images": False},
     "grid": {"loop_detector.params.uniqueness_window": [2, 5, 10, 30], "loop_detector.params.threshold": [0.1, 0.3]},
     "repetitions": 2,
@@ -93,7 +93,7 @@ def main() -> None:
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. "
         f"Load average (1 min) {load_before:.1f} before and {load_after:.1f} after: with other jobs on the "
         f"machine, wall times and parallel speed-ups understate what {os.cpu_count()} free cores give.",
-        f"Sweep: {RUNS} runs of the demo recipe at 100 + 100 frames (160x120, images not logged): "
+        f"Sweep: {RUNS} runs of the paired_demo recipe at 100 + 100 frames (160x120, images not logged): "
         f"uniqueness_window x threshold x 2 seeded repetitions. The runs' own pipeline time summed "
         f"to {base_inside:.1f} s of the baseline's {base_wall:.1f} s (the rest: building worlds, evaluation, reports).",
         table(["mode", "workers", "wall s", "speed-up vs baseline", "overhead/run from wall (s)",

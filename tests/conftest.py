@@ -1,4 +1,4 @@
-"""Shared fixtures. Real data comes from ../shared/data (or $SLAMFRONT_DATA)."""
+"""Shared fixtures. Real data comes from the data root (``slamfront datasets path``; docs/data.md)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,12 @@ from slamfront.data import data_root
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
-    """The real-data root; its absence is a failure, not a skip (see README, Tests)."""
+    """The real-data root; its absence is a failure, not a skip (docs/data.md)."""
     root = data_root()
-    assert root.is_dir(), f"real data not found at {root}: set SLAMFRONT_DATA or put ../shared/data beside the checkout"
+    assert root.is_dir(), (
+        f"real data not found at {root}: run `slamfront datasets fetch --for-tests` (or `make test`, which "
+        "does), or set SLAMFRONT_DATA to a folder holding it; see docs/data.md"
+    )
     return root
 
 

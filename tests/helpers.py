@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -9,7 +10,7 @@ from typing import Any
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from slamfront.mcaplog.diff import comparable_bytes
-from slamfront.mcaplog.reader import read_messages
+from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.writer import RunLogWriter
 
@@ -64,3 +65,83 @@ def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:
         if message.topic.startswith(prefix):
             topics.setdefault(message.topic, []).append(comparable_bytes(message))
     return topics
+
+
+# --- Foxglove layouts ----------------------------------------------------------------------
+
+DRAWN_IN_3D = {
+    "foxglove.SceneUpdate", "foxglove.PointCloud", "foxglove.PoseInFrame", "foxglove.PosesInFrame",
+    "foxglove.CameraCalibration", "foxglove.CompressedImage", "foxglove.RawImage",
+}
+"""What Foxglove's 3-D panel draws, by schema (Foxglove docs, "3D panel")."""
+
+
+def _mosaic_panels(node: Any) -> list[str]:
+    if isinstance(node, str):
+        return [node]
+    if isinstance(node, dict):
+        return _mosaic_panels(node.get("first")) + _mosaic_panels(node.get("second"))
+    return []
+
+
+def placed_panels(layout: dict[str, Any], tab: str | None = None) -> list[str]:
+    """The panels on screen: the layout's mosaic and, through ``Tab!`` panels, each tab's
+    (only the tab titled ``tab`` when given)."""
+    panels = []
+    for panel in _mosaic_panels(layout["layout"]):
+        if panel.startswith("Tab!"):
+            for entry in layout["configById"][panel]["tabs"]:
+                if tab is None or entry["title"] == tab:
+                    panels += _mosaic_panels(entry["layout"])
+        elif tab is None:
+            panels.append(panel)
+    return panels
+
+
+def layout_problems(layout: dict[str, Any], log: Path, tab: str | None = None) -> list[str]:
+    """Why a log would not fill a Foxglove layout's panels (empty when every panel's topic
+    is in the log, with a schema the panel shows and every plotted field present)."""
+    schemas = {t.topic: t.schema_name for t in summarize(log).topics}
+    config = layout["configById"]
+    problems = [f"{p}: configured but not placed" for p in config
+                if not p.startswith("Tab!") and p not in placed_panels(layout)]
+
+    def need(panel: str, topic: str, allowed: set[str]) -> None:
+        if topic not in schemas:
+            problems.append(f"{panel}: topic {topic} is not in the log")
+        elif schemas[topic] not in allowed:
+            problems.append(f"{panel}: {topic} is {schemas[topic]}, not one of {sorted(allowed)}")
+
+    for panel in placed_panels(layout, tab):
+        settings = config[panel]
+        kind = panel.split("!")[0]
+        if kind == "Image":
+            need(panel, settings["imageMode"]["imageTopic"], {"foxglove.CompressedImage", "foxglove.RawImage"})
+            need(panel, settings["imageMode"]["calibrationTopic"], {"foxglove.CameraCalibration"})
+        elif kind == "3D":
+            if settings.get("followTf") != "map":
+                problems.append(f"{panel}: does not follow the map frame")
+            for topic, shown in settings["topics"].items():
+                need(panel, topic, DRAWN_IN_3D)
+                if not shown.get("visible"):
+                    problems.append(f"{panel}: {topic} hidden")
+        elif kind == "Plot":
+            for path in (p["value"] for p in settings["paths"]):
+                topic, field = path.split(".", 1)
+                name, _, index = field.partition("[")
+                if topic not in schemas:
+                    problems.append(f"{panel}: topic {topic} is not in the log")
+                    continue
+                values = [json.loads(m.data).get(name, "missing") for m in read_messages(log, [topic])]
+                if all(v == "missing" for v in values):
+                    problems.append(f"{panel}: {topic} has no field {name}")
+                elif index and not any(isinstance(v, list) and len(v) > int(index.rstrip("]")) for v in values):
+                    problems.append(f"{panel}: {topic}.{name} is never a list of plain numbers long enough for {path}")
+        elif kind == "RawMessages":
+            if settings["topicPath"] not in schemas:
+                problems.append(f"{panel}: topic {settings['topicPath']} is not in the log")
+        elif kind == "RosOut":
+            need(panel, settings["topicToRender"], {"foxglove.Log"})
+        else:
+            problems.append(f"{panel}: a panel type this check does not know")
+    return problems

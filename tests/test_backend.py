@@ -169,6 +169,44 @@ def test_odometry_from_a_file_and_from_stages(tmp_path: Path) -> None:
         _drive(no_truth, [Frame(index=k, timestamp=k, image=frames[0].image) for k in range(2)])
 
 
+def test_odometry_from_the_images_and_a_late_answer_verified_on_its_own_frame() -> None:
+    """odometry: pnp measures each motion from the images; a sequence detector answering
+    frame 42 while frame 45 is processed gets frame 42's closure checked, not frame 45's."""
+    source = SyntheticWorld(SyntheticWorld.Config(
+        mode="stream", laps=2, frames_per_traversal=24, route_length_m=36, image_width=320, image_height=240,
+    ))
+    frames = list(source.frames())
+    backend = GtsamPoseGraph(GtsamPoseGraph.Config(odometry="pnp", loop_pose="pnp"))
+    assert GtsamPoseGraph.reads_pixels_with(GtsamPoseGraph.Config(odometry="pnp", loop_pose="stages"))
+
+    def late_answer(frame: Frame) -> dict[str, list]:
+        if frame.index != 45:
+            return {}
+        return {"loop_detector": [LoopResult(frame=42, match=18, confidence=0.9, accepted=True)]}
+
+    messages = _drive(backend, frames, late_answer)
+    odometry = [m for m in messages if isinstance(m, RelativePose)]
+    assert [(m.frame_from, m.frame_to) for m in odometry] == [(k - 1, k) for k in range(1, 48)]
+    measured = [m for m in odometry if m.method == "pnp odometry"]
+    assert len(measured) >= 28 and all(m.inliers >= 20 for m in measured)  # corners of a 36 m block: not all
+    for message in measured:
+        translation, _ = _error(message.transform, geometry.relative(frames[message.frame_from].pose,
+                                                                      frames[message.frame_to].pose))
+        assert translation < 0.5  # 1.5 m between frames
+    assert backend.statistics()["n_odometry_fallbacks"] == 47 - len(measured)
+    (constraint,) = [m for m in messages if isinstance(m, LoopConstraint)]
+    assert (constraint.frame, constraint.match) == (42, 18) and constraint.added, constraint.reason
+    state = next(m for m in messages if isinstance(m, PoseGraphState))
+    assert (18, 42) in set(zip(state.sources.tolist(), state.targets.tolist()))
+    assert _ate_against(messages, frames, "optimised") < _ate_against(messages, frames, "odometry")
+
+
+def _ate_against(messages: list, frames: list[Frame], label: str) -> float:
+    trajectory = next(m for m in messages if isinstance(m, Trajectory) and m.label == label)
+    truth = np.array([frames[k].pose[:3, 3] for k in trajectory.frames])
+    return ate_rmse(trajectory.poses[:, :3, 3], truth)
+
+
 def test_bad_backend_configs_fail_before_the_first_frame(cli, write_recipe, tmp_path: Path) -> None:
     from tests.helpers import small_synthetic_recipe
     from tests.test_cli import _one_line_error

@@ -141,10 +141,13 @@ class Crashing(LoopDetector):
     class Config(PluginConfig):
         crash: bool = Field(False, description="call os._exit(7) on the first query frame")
         tag: int = Field(0, description="only makes runs differ")
+        fail: bool = Field(False, description="raise ValueError on the first query frame")
 
     def process(self, inputs):
         if self.config.crash and inputs.frame.traversal == "query":
             os._exit(7)
+        if self.config.fail and inputs.frame.traversal == "query":
+            raise ValueError("told to fail")
         return []
 
 
@@ -173,6 +176,23 @@ def test_a_crashing_worker_fails_only_its_run(cli, tmp_path: Path, monkeypatch: 
     assert [row["status"] for row in rows] == ["failed", "ok", "ok", "failed"]
     assert [row["n_frames"] for row in rows] == ["", "20", "20", ""]
     assert all("worker process died" in rows[i]["error"] for i in (0, 3))
+
+
+def test_a_run_failing_mid_way_names_the_stage_and_its_partial_log(
+    cli, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "crashing_plugin.py").write_text(CRASHING_PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    recipe = quiet_recipe(frames_per_traversal=10)
+    recipe["plugin_modules"] = ["crashing_plugin"]
+    recipe["loop_detector"] = {"plugin": "crashing", "params": {"fail": True}}
+    sweep = write_sweep(tmp_path, {"cases": [{}], "metrics": ["n_frames"]}, recipe)
+    code, _, stderr = cli("sweep", sweep, "-o", tmp_path / "out", "--workers", "1", "-q")
+    assert code == 1
+    row = read_rows(tmp_path / "out")[0]
+    assert row["error"] == "ValueError: told to fail (in the loop_detector plugin 'crashing' at frame 10)"
+    log = tmp_path / "out" / row["run"] / "run.mcap"
+    assert f"{row['error']} (the log written so far: {log})" in stderr and log.is_file()
 
 
 def _finished_runs(out: Path) -> dict[Path, int]:

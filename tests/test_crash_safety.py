@@ -82,7 +82,9 @@ def test_a_plugin_that_raises_leaves_a_finalised_log(tmp_path: Path, monkeypatch
     summary = summarize(log)
     assert summary.complete and summary.topic("/frames").count == 46
     assert _open_with_mcap_readers(log) == summary.n_messages
-    assert _last_log_line(log) == "run failed after 45 frames: RuntimeError: boom"
+    assert _last_log_line(log) == (
+        "run failed after 45 frames in the loop_detector plugin 'nearest_neighbour' at frame 45: RuntimeError: boom"
+    )
     assert "/ground_truth/loops" in {t.topic for t in summary.topics}
     assert validate_log(log).valid
 

@@ -8,10 +8,9 @@ import re
 from pathlib import Path
 
 import slamfront.hookspecs as hookspecs
-from slamfront.data import checkout_root
 from slamfront.registry import PluginRegistry
 
-DOCS = checkout_root() / "docs"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def _hooks() -> dict[str, str]:

@@ -8,20 +8,15 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from slamfront.data import checkout_root
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.validate import foxglove_message_types, validate_log
-from slamfront.recipe import build_pipeline, parse_recipe
+from slamfront.recipe import build_pipeline, load_recipe, parse_recipe
 from slamfront.runtime import RunResult, run_pipeline
-from tests.helpers import rewrite_log, small_synthetic_recipe
+from tests.helpers import layout_problems, rewrite_log, small_synthetic_recipe
 
-LAYOUT = checkout_root() / "foxglove" / "slamfront-layout.json"
+REPO = Path(__file__).resolve().parents[1]
+LAYOUT = REPO / "foxglove" / "slamfront-layout.json"
 
-# what the 3-D panel draws, by schema (Foxglove docs, "3D panel")
-DRAWN_IN_3D = {
-    "foxglove.SceneUpdate", "foxglove.PointCloud", "foxglove.PoseInFrame", "foxglove.PosesInFrame",
-    "foxglove.CameraCalibration", "foxglove.CompressedImage", "foxglove.RawImage",
-}
 
 
 @pytest.fixture(scope="module")
@@ -86,24 +81,42 @@ def test_frames_and_times_line_up_for_the_3d_panel(full_log: RunResult) -> None:
 
 def test_the_foxglove_layout_shows_topics_the_logs_have(full_log: RunResult) -> None:
     layout = json.loads(LAYOUT.read_text())
-    panels = layout["configById"]
-    schemas = {t.topic: t.schema_name for t in summarize(full_log.log_path).topics}
-    image = next(c for k, c in panels.items() if k.startswith("Image!"))["imageMode"]
-    assert schemas[image["imageTopic"]] == "foxglove.CompressedImage"
-    assert schemas[image["calibrationTopic"]] == "foxglove.CameraCalibration"
-    three_d = next(c for k, c in panels.items() if k.startswith("3D!"))
-    assert three_d["followTf"] == "map"
-    for topic, settings in three_d["topics"].items():
-        assert settings["visible"] and schemas[topic] in DRAWN_IN_3D, topic
-    plotted = [p["value"] for k, c in panels.items() if k.startswith("Plot!") for p in c["paths"]]
+    # a loop-closure run fills the first tab; the back-end tab is checked on the demo's log (test_demo.py)
+    assert layout_problems(layout, full_log.log_path, tab="Loop closure") == []
+    plotted = [p["value"] for k, c in layout["configById"].items() if k.startswith("Plot!") for p in c["paths"]]
     assert "/loop_detector/loop_result.confidence" in plotted
-    for path in plotted:
-        topic, field = path.split(".", 1)
-        assert topic in schemas and field in json.loads(next(read_messages(full_log.log_path, [topic])).data)
-    placed = json.dumps(layout["layout"])
-    assert all(panel in placed for panel in panels)  # every configured panel is on screen
-    readme = (checkout_root() / "README.md").read_text()
+    assert {"Loop closure", "Back end"} <= {t["title"] for t in layout["configById"]["Tab!slamfront-tabs"]["tabs"]}
+    readme = (REPO / "README.md").read_text()
     assert "foxglove/slamfront-layout.json" in readme
+
+
+@pytest.mark.parametrize("recipe, overrides, layout", [
+    ("synthetic_localize", {"frames_per_traversal": 30, "route_length_m": 45}, "slamfront-localization.json"),
+    ("synthetic_register", {"frames_per_traversal": 8, "route_length_m": 30}, "slamfront-registration.json"),
+])
+def test_localization_and_registration_layouts_show_topics_their_logs_have(
+    recipe: str, overrides: dict[str, int], layout: str, tmp_path: Path
+) -> None:
+    loaded, path = load_recipe(recipe, [f"source.params.{k}={v}" for k, v in overrides.items()] + ["eval.plots=false"])
+    result = run_pipeline(build_pipeline(loaded, str(path)), str(path), tmp_path, progress=False)
+    assert layout_problems(json.loads((LAYOUT.parent / layout).read_text()), result.log_path) == []
+    assert f"`slamfront layout {layout}`" in result.report_path.read_text()  # the report names the layout to use
+
+
+def test_every_shipped_layout_is_found_by_name(cli) -> None:
+    for layout in sorted(LAYOUT.parent.glob("*.json")):
+        code, out, _ = cli("layout", layout.stem)
+        assert code == 0 and json.loads(Path(out.strip()).read_text()) == json.loads(layout.read_text())
+    code, _, err = cli("layout", "nope")
+    assert code == 2 and "no shipped Foxglove layout named 'nope'" in err and "slamfront-registration.json" in err
+
+
+def test_the_layout_check_notices_a_panel_without_its_topic(full_log: RunResult) -> None:
+    layout = json.loads(LAYOUT.read_text())
+    layout["configById"]["Plot!slamfront-confidence"]["paths"][0]["value"] = "/loop_detector/loop_result.nothing"
+    layout["configById"]["RosOut!slamfront-log"]["topicToRender"] = "/no/such/topic"
+    problems = layout_problems(layout, full_log.log_path, tab="Loop closure")
+    assert any("has no field nothing" in p for p in problems) and any("/no/such/topic" in p for p in problems)
 
 
 def test_the_report_states_log_size_and_write_throughput(full_log: RunResult) -> None:

@@ -51,3 +51,19 @@ def test_schema_lists_every_field_and_lookup_by_name() -> None:
     assert set(schema["properties"]) == {"frame", "match", "confidence", "accepted", "candidates", "reason"}
     assert schema["title"] == "slamfront.LoopResult"
     assert message_class("slamfront.RunMetrics") is RunMetrics
+
+
+def test_plotted_arrays_are_also_plain_numbers_and_still_round_trip() -> None:
+    pose = np.eye(4)
+    pose[:3, 3] = [1.5, -2.0, float("nan")]
+    info = FrameInfo(frame=3, timestamp=0.5, traversal="stream", sequence_index=3, name="f", width=4, height=3,
+                     pose=pose)
+    raw = json.loads(info.to_json())
+    assert raw["pose_values"][3] == 1.5 and raw["pose_values"][7] == -2.0 and raw["pose_values"][11] is None
+    assert len(raw["pose_values"]) == 16 and raw["pose"]["dtype"] == "<f8"  # the exact copy is still there
+    back = FrameInfo.from_json(info.to_json())
+    assert back.to_json() == info.to_json() and np.array_equal(back.pose, pose, equal_nan=True)
+    assert "pose_values" in FrameInfo.json_schema()["properties"]
+    assert json.loads(FrameInfo(frame=0, timestamp=0.0, traversal="s", sequence_index=0, name="", width=1,
+                                height=1).to_json())["pose_values"] is None
+    assert "vector_values" not in json.loads(Features(frame=0, vector=np.ones(3)).to_json())  # not plotted

@@ -93,3 +93,83 @@ def test_unknown_hook_in_a_plugin_module_is_rejected() -> None:
     registry = PluginRegistry(load_entry_points=False)
     with pytest.raises(PluginError, match="typo_module"):
         registry.register_module(module)
+
+
+def _local_module(tmp_path, monkeypatch, name: str, text: str) -> str:
+    """A plugin module file in the working directory, importable by ``name``."""
+    (tmp_path / f"{name}.py").write_text(text)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return name
+
+
+def test_a_hookimpl_with_an_unexpected_argument_is_one_line_naming_module_and_hook(
+    cli, tmp_path, monkeypatch
+) -> None:
+    name = _local_module(tmp_path, monkeypatch, "extra_argument_plugins", (
+        "import slamfront\n\n@slamfront.hookimpl\ndef slamfront_descriptors(config):\n    return []\n"
+    ))
+    code, _, err = cli("plugins", "-p", name)
+    assert code == 2 and "Traceback" not in err and "AssertionError" not in err
+    assert err.strip() == (
+        "slamfront: error: plugin module 'extra_argument_plugins': hook slamfront_descriptors(config): "
+        "the hook is called with no arguments; remove 'config'"
+    )
+    registry = PluginRegistry(load_entry_points=False)
+    with pytest.raises(PluginError, match="extra_argument_plugins"):
+        registry.register_module(name)
+    assert registry.modules() == []  # nothing half-registered
+
+
+def test_a_misspelt_hook_suggests_the_hook(cli, tmp_path, monkeypatch) -> None:
+    name = _local_module(tmp_path, monkeypatch, "misspelt_hook_plugins", (
+        "import slamfront\n\n@slamfront.hookimpl\ndef slamfront_loop_detector():\n    return []\n"
+    ))
+    code, _, err = cli("plugins", "-p", name)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "plugin module 'misspelt_hook_plugins': slamfront_loop_detector: no hook is called " \
+           "'slamfront_loop_detector'; did you mean 'slamfront_loop_detectors'" in err
+
+
+INVALID_AND_VALID = '''
+import slamfront
+
+
+class Good(slamfront.Descriptor):
+    """A local descriptor."""
+
+    name = "good_local"
+
+
+class NoDoc(slamfront.Descriptor):
+    name = "nodoc"
+
+
+class NotADescriptor:
+    """Not derived from slamfront.Descriptor."""
+
+    name = "not_a_descriptor"
+
+
+@slamfront.hookimpl
+def slamfront_descriptors():
+    return [Good, NoDoc, NotADescriptor]
+'''
+
+
+def test_invalid_plugins_come_first_and_local_modules_are_labelled(cli, tmp_path, monkeypatch) -> None:
+    name = _local_module(tmp_path, monkeypatch, "mixed_local_plugins", INVALID_AND_VALID)
+    code, out, _ = cli("plugins", "-p", name)
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0] == "invalid plugins, skipped (fix these to use them):"
+    assert "mixed_local_plugins: descriptor plugin 'nodoc' (NoDoc) has no docstring" in lines[1]
+    assert "does not derive from slamfront.Descriptor" in lines[2]
+    good = next(line for line in lines if line.lstrip().startswith("good_local"))
+    assert f"[local module mixed_local_plugins ({tmp_path / 'mixed_local_plugins.py'})]" in good
+    assert "not installed" not in out
+    code, out, err = cli("plugins", "-p", name, "--json")
+    listed = {p["name"]: p for p in json.loads(out)}
+    assert listed["good_local"]["origin"].startswith("local module mixed_local_plugins")
+    assert listed["colour_histogram"]["origin"].startswith("slamfront-example-plugin ")
+    assert "invalid plugin skipped: mixed_local_plugins: descriptor plugin 'nodoc'" in err

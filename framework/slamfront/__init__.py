@@ -1,7 +1,7 @@
 """slamfront: a plugin-based visual SLAM front-end framework.
 
 The public names a plugin author needs are re-exported here; everything else lives
-in the sub-modules named in docs/architecture.md.
+in the sub-modules named in docs/design.md.
 """
 
 from importlib.metadata import PackageNotFoundError, version

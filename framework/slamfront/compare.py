@@ -27,6 +27,7 @@ from slamfront.errors import RecipeError
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
 from slamfront.recipe import find_recipe, parse_override, read_recipe_dict
 from slamfront.report import plots
+from slamfront.report.html import write_html
 
 COMPARED_METRICS = (
     "recall_at_100p",
@@ -132,14 +133,17 @@ def _write_report(rows: list[dict[str, Any]], figures: list[Path], out_dir: Path
         "",
         "Each method is one recipe, run through the same harness and scored against the same "
         "ground truth (`recall_at_100p`/`auc_pr` at the source's tolerance, `_zeta1` at zeta = 1). "
-        "Runs and their logs are in `runs/`; `results.csv` has the same numbers.",
+        "Runs and their logs are in `runs/` (each run's report is linked in the last column; "
+        "[report.md](report.md) is the campaign's view); `results.csv` has the same numbers.",
         "",
-        "| method | status | " + " | ".join(present) + " |",
-        "| --- | --- |" + " --- |" * len(present),
+        "| method | status | " + " | ".join(present) + " | run |",
+        "| --- | --- |" + " --- |" * len(present) + " --- |",
     ]
     for row in rows:
         cells = [_cell(row.get(m)) for m in present]
-        lines.append(f"| {row['method']} | {row['status']} | " + " | ".join(cells) + " |")
+        folder = _run_folder(row, out_dir)
+        link = f"[report]({row['run']}/report.md)" if (folder / "report.md").is_file() else "-"
+        lines.append(f"| {row['method']} | {row['status']} | " + " | ".join(cells) + f" | {link} |")
     failed = [row for row in rows if row["status"] == "failed"]
     if failed:
         lines += ["", "## Failed runs", ""] + [f"- {row['method']}: {row.get('error')}" for row in failed]
@@ -148,4 +152,5 @@ def _write_report(rows: list[dict[str, Any]], figures: list[Path], out_dir: Path
         lines += [f"![{figure.stem}]({figure.name})", ""]
     path = out_dir / "comparison.md"
     path.write_text("\n".join(lines))
+    write_html(path)
     return path

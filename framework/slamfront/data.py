@@ -1,8 +1,19 @@
-"""Where data lives: the data root and recipe paths relative to it.
+"""Where data lives: one rule for the data root, and recipe paths relative to it.
 
-The data root is ``$SLAMFRONT_DATA`` when set, else ``shared/data`` beside the source
-checkout. A relative path in a plugin config typed :data:`DataPath` is resolved against
-it, so recipes stay portable between machines.
+The data root is, in this order:
+
+1. ``$SLAMFRONT_DATA`` when set;
+2. ``shared/data`` beside the source checkout this package runs from, when that folder
+   exists (a development checkout; an installed wheel has no checkout);
+3. the per-user data directory (``platformdirs``: ``~/.local/share/slamfront`` on Linux,
+   ``~/Library/Application Support/slamfront`` on macOS, ``%LOCALAPPDATA%\\slamfront``
+   on Windows).
+
+Downloads (``slamfront datasets download`` and ``fetch``) go to :func:`download_root`:
+``$SLAMFRONT_DATA`` when set, else the per-user data directory, never into a
+``shared/data`` folder beside a checkout (provided data is read, not written). A
+relative path in a plugin config typed :data:`DataPath` is resolved against the data
+root, so recipes stay portable between machines.
 """
 
 from __future__ import annotations
@@ -11,28 +22,46 @@ import os
 from pathlib import Path
 from typing import Annotated
 
+import platformdirs
 from pydantic import AfterValidator, ValidationInfo
 
 DATA_ENV = "SLAMFRONT_DATA"
 
 
-def checkout_root() -> Path:
-    """The source checkout this package runs from (``framework/slamfront`` is two levels down)."""
-    return Path(__file__).resolve().parents[2]
+def source_checkout() -> Path | None:
+    """The source checkout this package runs from (an editable install), or None (a wheel).
+
+    ``framework/slamfront/data.py`` is two folders below the checkout's root; an installed
+    package sits in ``site-packages`` instead, whose parent is no checkout.
+    """
+    root = Path(__file__).resolve().parents[2]
+    is_checkout = (root / "pyproject.toml").is_file() and (root / "framework" / "slamfront").is_dir()
+    return root if is_checkout else None
+
+
+def user_data_dir() -> Path:
+    """The per-user data directory (the platform's convention, via ``platformdirs``)."""
+    return platformdirs.user_data_path("slamfront", appauthor=False)
+
+
+def _checkout_data() -> Path | None:
+    checkout = source_checkout()
+    shared = checkout.parent / "shared" / "data" if checkout is not None else None
+    return shared.resolve() if shared is not None and shared.is_dir() else None
 
 
 def data_root() -> Path:
-    """``$SLAMFRONT_DATA``, else ``shared/data`` beside the source checkout."""
+    """``$SLAMFRONT_DATA``, else ``shared/data`` beside a source checkout, else the per-user data dir."""
     env = os.environ.get(DATA_ENV)
     if env:
         return Path(env).expanduser().resolve()
-    return (checkout_root().parent / "shared" / "data").resolve()
+    return _checkout_data() or user_data_dir()
 
 
-def cache_root() -> Path:
-    """Where downloaded datasets go: ``$SLAMFRONT_CACHE``, else ``~/.cache/slamfront``."""
-    env = os.environ.get("SLAMFRONT_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "slamfront"
+def download_root() -> Path:
+    """Where downloads go: ``$SLAMFRONT_DATA``, else the per-user data dir."""
+    env = os.environ.get(DATA_ENV)
+    return Path(env).expanduser().resolve() if env else user_data_dir()
 
 
 def _resolve_data_path(value: Path, info: ValidationInfo) -> Path:

@@ -1,8 +1,8 @@
-"""Downloading public datasets into the cache: official URL, checksum, resumable, extracted.
+"""Downloading public datasets into the download folder: official URL, checksum, resumable, extracted.
 
 A source plugin lists the datasets it reads in its ``downloads`` class attribute
 (:class:`DatasetDownload` records); ``slamfront datasets`` shows them and fetches one
-into ``cache_root()/<name>/``. A download is written to ``<name>.<ext>.part`` and
+into ``download_root()/<name>/``. A download is written to ``<name>.<ext>.part`` and
 resumed with an HTTP range request when interrupted; the finished archive is checked
 against its published SHA-256 (or, when the publisher gives none, its checksum is
 recorded beside it and printed so it can be compared and pinned), then extracted
@@ -28,7 +28,7 @@ from typing import Literal
 
 from tqdm import tqdm
 
-from slamfront.data import cache_root
+from slamfront.data import download_root
 from slamfront.errors import DataError
 
 COMPLETE_MARKER = ".slamfront-complete"
@@ -37,11 +37,15 @@ COMPLETE_MARKER = ".slamfront-complete"
 _CHUNK = 1 << 20
 
 
+class UnreachableError(DataError):
+    """The host could not be reached at all (offline, DNS, refused), as opposed to an HTTP error."""
+
+
 @dataclass(frozen=True)
 class DatasetDownload:
     """Where a public dataset comes from and how it unpacks.
 
-    :ivar name: cache folder name and the name ``slamfront datasets download`` takes.
+    :ivar name: folder name (under the download folder) and the name ``slamfront datasets download`` takes.
     :ivar url: the official direct-download URL; None when there is none (``manual``
         then says how to get the data).
     :ivar sha256: the archive's published SHA-256, or None when the publisher gives none.
@@ -49,7 +53,7 @@ class DatasetDownload:
     :ivar members: extract only archive members under this prefix ("" = all).
     :ivar strip: leading path removed from extracted member names.
     :ivar expect: paths (relative to the dataset folder) that must exist afterwards.
-    :ivar manual: how to get the data by hand; ``{cache}`` is replaced by the cache folder.
+    :ivar manual: how to get the data by hand; ``{cache}`` is replaced by the download folder.
     """
 
     name: str
@@ -66,11 +70,11 @@ class DatasetDownload:
 
     def folder(self, cache: Path | None = None) -> Path:
         """Where the extracted dataset lives."""
-        return (cache or cache_root()) / self.name
+        return (cache or download_root()) / self.name
 
     def archive_path(self, cache: Path | None = None) -> Path:
         suffix = {"zip": ".zip", "tar": ".tar", "file": ""}[self.archive]
-        return (cache or cache_root()) / f"{self.name}{suffix}"
+        return (cache or download_root()) / f"{self.name}{suffix}"
 
     def is_installed(self, cache: Path | None = None) -> bool:
         return (self.folder(cache) / COMPLETE_MARKER).is_file()
@@ -84,14 +88,14 @@ def fetch(
     timeout: float = 30.0,
     report: Callable[[str], None] = print,
 ) -> Path:
-    """Make ``spec`` available in the cache and return its folder.
+    """Make ``spec`` available in the download folder ``cache`` and return its folder.
 
     :param url: use this URL instead of the official one (a mirror, a ``file://`` copy).
     :param progress: show a byte progress bar (None: only on a terminal).
     :param report: where notes go (the recorded checksum when none is published).
     :raises DataError: no URL, network failure, checksum mismatch, corrupt archive.
     """
-    cache = cache or cache_root()
+    cache = cache or download_root()
     folder = spec.folder(cache)
     if spec.is_installed(cache):
         return folder
@@ -101,8 +105,8 @@ def fetch(
         raise DataError(f"{spec.name}: no direct download. {spec.manual.format(cache=cache)}".strip())
     cache.mkdir(parents=True, exist_ok=True)
     if not archive.exists():
-        _download(source, archive, spec.name, progress, timeout)  # type: ignore[arg-type]
-    digest = _sha256(archive)
+        download(source, archive, spec.name, timeout, progress=progress)  # type: ignore[arg-type]
+    digest = sha256_of(archive)
     if spec.sha256 is not None and digest != spec.sha256.lower():
         bad = archive.with_name(archive.name + ".bad")
         os.replace(archive, bad)
@@ -124,8 +128,17 @@ def fetch(
     return folder
 
 
-def _download(url: str, target: Path, name: str, progress: bool | None, timeout: float) -> None:
-    """Fetch ``url`` to ``target`` through ``target.part``, resuming a partial file."""
+def download(
+    url: str, target: Path, name: str, timeout: float = 30.0, retry: str | None = None, progress: bool | None = False
+) -> None:
+    """Fetch ``url`` to ``target`` through ``target.part``, resuming a partial file.
+
+    :param retry: the command that resumes the download, for messages
+        (default ``slamfront datasets download NAME``).
+    :raises UnreachableError: the host cannot be reached (kept bytes resume next time).
+    :raises DataError: an HTTP error, or the transfer ended early.
+    """
+    retry = retry or f"slamfront datasets download {name}"
     part = target.with_name(target.name + ".part")
     have = part.stat().st_size if part.exists() else 0
     request = urllib.request.Request(url, headers={"User-Agent": "slamfront"})
@@ -152,19 +165,19 @@ def _download(url: str, target: Path, name: str, progress: bool | None, timeout:
     except (urllib.error.URLError, OSError, TimeoutError) as exc:
         reason = getattr(exc, "reason", None) or exc
         kept = f" ({part.stat().st_size} bytes kept in {part}; the next try resumes)" if part.exists() else ""
-        raise DataError(
+        raise UnreachableError(
             f"cannot download {name} from {url}: {reason}{kept}. Offline? Fetch the file by other "
-            f"means, save it as {target} and run `slamfront datasets download {name}` again."
+            f"means, save it as {target} and run `{retry}` again."
         ) from exc
     if total is not None and part.stat().st_size < total:
         raise DataError(
             f"download of {name} from {url} ended early ({part.stat().st_size} of {total} bytes, kept in "
-            f"{part}); run `slamfront datasets download {name}` again to resume"
+            f"{part}); run `{retry}` again to resume"
         )
     os.replace(part, target)
 
 
-def _sha256(path: Path) -> str:
+def sha256_of(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         while chunk := handle.read(_CHUNK):

@@ -1,8 +1,15 @@
 """Errors a user can cause and fix.
 
 The CLI turns every :class:`SlamfrontError` into one line on stderr and exit code 2.
-Anything else is a bug in slamfront or in a plugin and keeps its traceback.
+Anything else is a bug in slamfront or in a plugin and keeps its traceback. Either way,
+when the error stops a run whose log was opened, the exception carries a
+:class:`RunFailure` (:func:`run_failure_of`) so the message can say where the log is.
 """
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
 
 
 class SlamfrontError(Exception):
@@ -23,3 +30,26 @@ class DataError(SlamfrontError):
 
 class LogError(SlamfrontError):
     """An MCAP log is missing, truncated or not a slamfront log."""
+
+
+@dataclass(frozen=True)
+class RunFailure:
+    """Where a failed run was, and the log it leaves (finalised and readable, but partial)."""
+
+    log: Path
+    where: str
+    """What the run was doing: ``in the descriptor plugin 'x' at frame 12``."""
+
+
+_RUN_FAILURE = "slamfront_run_failure"  # the attribute an exception carries its RunFailure in
+
+
+def note_run_failure(exc: BaseException, log: Path, where: str) -> None:
+    """Record on ``exc`` that it stopped a run writing ``log`` (the innermost run wins)."""
+    if run_failure_of(exc) is None:
+        setattr(exc, _RUN_FAILURE, RunFailure(log, where))
+
+
+def run_failure_of(exc: BaseException) -> RunFailure | None:
+    """The :class:`RunFailure` ``exc`` carries, if it stopped a run."""
+    return getattr(exc, _RUN_FAILURE, None)

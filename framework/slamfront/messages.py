@@ -8,6 +8,14 @@ reader can decode it without slamfront. NumPy arrays are stored as
 JSON numbers (Python prints the shortest repr that round-trips) or, when not finite, as
 the strings ``"nan"``, ``"inf"``, ``"-inf"``: decoding gives back identical bits.
 
+Base64 is exact but no plot can read it. The array fields a person plots (poses,
+transforms, per-candidate costs) are therefore also written as ``<field>_values``: the
+same numbers as a flat row-major list of JSON numbers (``null`` where not finite), e.g.
+``/frames.pose_values[3]`` is the ground-truth x in a Foxglove Plot (x, y, z of a 4x4
+pose are items 3, 7 and 11). A class names these fields in ``plain_fields``; decoding
+reads only the exact field, and encoding writes the list again from it, so the round
+trip stays bit-exact.
+
 A plugin that needs a message type of its own derives from :class:`Message` in its
 module; :func:`message_class` finds it by schema name once the module is imported.
 """
@@ -49,10 +57,14 @@ class Message:
     volatile_fields: ClassVar[tuple[str, ...]] = ()
     """Fields that measure the machine (wall times), not the method: ``slamfront diff``
     leaves them out unless ``--strict``, so a replay or a rerun still compares equal."""
+    plain_fields: ClassVar[tuple[str, ...]] = ()
+    """Array fields also written as ``<field>_values``, plain JSON numbers a plot can read."""
 
     def to_json(self) -> bytes:
         """Encode as compact UTF-8 JSON (see the module docstring for arrays and floats)."""
         payload = {f.name: _encode(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        for name in self.plain_fields:
+            payload[f"{name}{PLAIN_SUFFIX}"] = _plain(getattr(self, name))
         return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
 
     @classmethod
@@ -71,6 +83,8 @@ class Message:
         """A JSON Schema (draft 2020-12) describing the encoded message."""
         hints = _type_hints(cls)
         properties = {f.name: _schema_for(hints[f.name]) for f in dataclasses.fields(cls)}
+        for name in cls.plain_fields:
+            properties[f"{name}{PLAIN_SUFFIX}"] = _PLAIN_SCHEMA
         return {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "title": cls.schema_name,
@@ -89,6 +103,10 @@ class Message:
     def same_as(self, other: Message) -> bool:
         """True when both messages encode to the same bytes (arrays compared bit for bit)."""
         return type(self) is type(other) and self.to_json() == other.to_json()
+
+
+PLAIN_SUFFIX = "_values"
+"""Suffix of the plain-number copy of an array field (see ``Message.plain_fields``)."""
 
 
 def decode_any(data: bytes | str) -> dict[str, Any]:
@@ -139,6 +157,16 @@ def _encode(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_encode(v) for v in value]
     return value
+
+
+def _plain(value: Any) -> list[float | int | None] | None:
+    """An array as a flat row-major list of JSON numbers (None where not finite)."""
+    if value is None:
+        return None
+    flat = np.asarray(value).ravel()
+    if flat.dtype.kind in "iub":
+        return [int(v) for v in flat]
+    return [float(v) if math.isfinite(v) else None for v in flat.astype(np.float64)]
 
 
 def _is_array_payload(value: Any) -> bool:
@@ -202,6 +230,13 @@ _ARRAY_SCHEMA = {
 }
 
 
+_PLAIN_SCHEMA = {
+    "anyOf": [{"type": "array", "items": {"type": ["number", "null"]}}, {"type": "null"}],
+    "description": "the array field of the same name as a flat row-major list of plain numbers "
+    "(null where not finite), for plots; a 4x4 pose's x, y, z are items 3, 7, 11",
+}
+
+
 def _schema_for(hint: Any) -> dict[str, Any]:
     origin = typing.get_origin(hint)
     if isinstance(hint, types.UnionType) or origin is typing.Union:
@@ -234,6 +269,7 @@ class FrameInfo(Message):
     """What the source said about a frame (its pixels go to the image topic)."""
 
     schema_name: ClassVar[str] = "slamfront.FrameInfo"
+    plain_fields: ClassVar[tuple[str, ...]] = ("pose",)
     frame: int
     timestamp: float
     traversal: str
@@ -339,6 +375,7 @@ class CloudRegistration(Message):
     """
 
     schema_name: ClassVar[str] = "slamfront.CloudRegistration"
+    plain_fields: ClassVar[tuple[str, ...]] = ("pose", "transform")
     volatile_fields: ClassVar[tuple[str, ...]] = ("seconds",)
     frame: int
     outcome: str
@@ -456,6 +493,7 @@ class PoseEstimate(Message):
     """
 
     schema_name: ClassVar[str] = "slamfront.PoseEstimate"
+    plain_fields: ClassVar[tuple[str, ...]] = ("pose", "keyframe_pose")
     frame: int
     keyframe: int
     node: int = -1
@@ -486,6 +524,7 @@ class KeyframeAdded(Message):
     """A frame became a keyframe (a node of the topological map) during training."""
 
     schema_name: ClassVar[str] = "slamfront.KeyframeAdded"
+    plain_fields: ClassVar[tuple[str, ...]] = ("pose",)
     frame: int
     node: int
     pose: np.ndarray | None = None
@@ -573,6 +612,7 @@ class RelativePose(Message):
     """
 
     schema_name: ClassVar[str] = "slamfront.RelativePose"
+    plain_fields: ClassVar[tuple[str, ...]] = ("transform",)
     frame_from: int
     frame_to: int
     transform: np.ndarray
@@ -607,6 +647,7 @@ class LoopConstraint(Message):
     """The back end's decision on one loop closure: added to the graph, or skipped and why."""
 
     schema_name: ClassVar[str] = "slamfront.LoopConstraint"
+    plain_fields: ClassVar[tuple[str, ...]] = ("transform",)
     frame: int
     match: int
     added: bool

@@ -16,10 +16,14 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from slamfront.data import checkout_root, data_root
+from slamfront.data import data_root
 from slamfront.errors import PluginError, RecipeError
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
+from slamfront.resources import shipped_dir
+from slamfront.suggest import did_you_mean, model_keys_at
+
+LogLevel = Literal["debug", "info", "warning", "error"]
 
 
 class _Strict(BaseModel):
@@ -52,6 +56,9 @@ class LogOptions(_Strict):
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
     sync_seconds: float | None = Field(
         5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
+    )
+    level: LogLevel = Field(
+        "info", description="lowest level of the plugins' logging records kept in /log (warnings also go to the terminal)"
     )
 
 
@@ -103,18 +110,20 @@ class Recipe(_Strict):
 
 
 def recipes_dir() -> Path:
-    """The shipped recipes (``recipes/`` in the checkout)."""
-    return checkout_root() / "recipes"
+    """The shipped recipes (installed package data; ``recipes/`` in the repository)."""
+    return shipped_dir("recipes")
 
 
 def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
-    """A path as given, or ``folder/<name>.yaml`` for a bare name (a shipped recipe or sweep)."""
+    """A path as given; for a bare name, ``<name>.yaml`` in the current directory, else the
+    shipped ``folder/<name>.yaml``. The user's own file always wins over a shipped one."""
     path = Path(name_or_path)
     if path.exists():
         return path
-    shipped = folder / f"{name_or_path}.yaml"
-    if path.suffix == "" and shipped.exists():
-        return shipped
+    if path.suffix == "" and path.name == str(name_or_path):
+        for candidate in (path.with_name(f"{path.name}.yaml"), folder / f"{path.name}.yaml"):
+            if candidate.is_file():
+                return candidate
     raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
@@ -163,10 +172,19 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
 
     The value is parsed as YAML. Missing intermediate mappings are created, so
     ``--set loop_detector.params.k=5`` works whether or not ``params`` was written.
+    ``--set STAGE.plugin=X`` naming another plugin starts X from its own defaults: the
+    old plugin's params are dropped (they rarely fit), and ``--set STAGE.params...``
+    given with it apply to X whatever their order on the command line.
     """
     result = yaml.safe_load(yaml.safe_dump(raw))  # deep copy of plain data
-    for item in overrides:
-        key, value = parse_override(item, origin)
+    parsed = [(item, *parse_override(item, origin)) for item in overrides]
+    # plugin switches first, so that the params set beside them are not dropped with the old ones
+    parsed.sort(key=lambda entry: not _is_plugin_switch(entry[1]))
+    for item, key, value in parsed:
+        if _is_plugin_switch(key):
+            stage = result.get(key.split(".")[0])
+            if isinstance(stage, dict) and stage.get("plugin") != value:
+                stage.pop("params", None)
         node: Any = result
         parts = key.split(".")
         for depth, part in enumerate(parts[:-1]):
@@ -188,13 +206,31 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
     return result
 
 
-def _format_validation(exc: ValidationError, prefix: str) -> str:
-    """pydantic's first error as ``prefix.field.path: message (got value)``."""
+def _is_plugin_switch(key: str) -> bool:
+    kind, _, field = key.partition(".")
+    return field == "plugin" and kind in ("source", *STAGE_KINDS)
+
+
+def _format_validation(exc: ValidationError, prefix: str, model: type[BaseModel] | None = None, owner: str = "") -> str:
+    """pydantic's first error as ``prefix.field.path: message (got value)``.
+
+    An unknown key (pydantic's bare "Extra inputs are not permitted") names the closest
+    keys ``model`` accepts at that place instead.
+
+    :param model: the model that was validated, to suggest keys from.
+    :param owner: what the keys belong to, for the message (``the nearest_neighbour loop_detector``).
+    """
     err = exc.errors()[0]
     loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
+    more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
+    if err["type"] == "extra_forbidden" and model is not None and err["loc"]:
+        *path, key = err["loc"]
+        known = model_keys_at(model, path)
+        if known is not None:
+            what = f"parameter of {owner}" if owner else "key"
+            return f"{loc}: unknown {what}; {did_you_mean(str(key), known, 'keys')}{more}"
     got = err.get("input")
     shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
-    more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
     return f"{loc}: {err['msg']}{shown}{more}"
 
 
@@ -203,7 +239,7 @@ def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:
     try:
         return Recipe.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(f"{origin}: {_format_validation(exc, '')}") from exc
+        raise RecipeError(f"{origin}: {_format_validation(exc, '', Recipe)}") from exc
 
 
 def load_recipe(path_or_name: str | Path, overrides: Iterable[str] = ()) -> tuple[Recipe, Path]:
@@ -211,6 +247,21 @@ def load_recipe(path_or_name: str | Path, overrides: Iterable[str] = ()) -> tupl
     path = find_recipe(path_or_name)
     raw = apply_overrides(read_recipe_dict(path), overrides)
     return parse_recipe(raw, str(path)), path
+
+
+def override_keys(recipe: Recipe, registry: PluginRegistry) -> list[str]:
+    """Every key ``--set`` takes for ``recipe``: its own fields, each stage's ``plugin``, the
+    params of the plugins it names, and the log and eval options (for shell completion)."""
+    keys = [name for name, field in Recipe.model_fields.items() if field.annotation in (str, list[str])]
+    keys += [f"{kind}.plugin" for kind in ("source", *STAGE_KINDS)]
+    for module in recipe.plugin_modules:
+        registry.register_module(module)
+    for kind, spec in recipe.stage_specs().items():
+        if spec.plugin in registry.names(kind):
+            keys += [f"{kind}.params.{name}" for name in registry.get(kind, spec.plugin).cls.Config.model_fields]
+    keys += [f"log.{name}" for name in LogOptions.model_fields]
+    keys += [f"eval.{name}" for name in EvalOptions.model_fields]
+    return keys
 
 
 @dataclass
@@ -253,7 +304,9 @@ def validate_stage_params(
         try:
             config = info.cls.Config.model_validate(spec.params, context=context)
         except ValidationError as exc:
-            raise RecipeError(f"{origin}: {_format_validation(exc, f'{kind}.params')}") from exc
+            owner = f"the {spec.plugin} {kind}"
+            message = _format_validation(exc, f"{kind}.params", info.cls.Config, owner)
+            raise RecipeError(f"{origin}: {message}") from exc
         configs[kind] = (info.cls, config)
     return configs
 

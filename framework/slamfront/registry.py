@@ -10,8 +10,8 @@ Set ``SLAMFRONT_TRACE_HOOKS=1`` to print every hook call, its implementations an
 
 from __future__ import annotations
 
-import difflib
 import importlib
+import importlib.metadata
 import inspect
 import os
 import sys
@@ -25,6 +25,7 @@ from pydantic import BaseModel
 from slamfront import hookspecs
 from slamfront.errors import PluginError
 from slamfront.plugin import KIND_BASES, KINDS, Kind, Plugin
+from slamfront.suggest import did_you_mean
 
 ENTRY_POINT_GROUP = "slamfront"
 
@@ -48,12 +49,22 @@ class PluginInfo:
     cls: type[Plugin]
     module: str
     distribution: str
-    """The installed package that registered it (``slamfront`` for built-ins)."""
+    """The installed package that provides it (``slamfront`` for built-ins); empty for a
+    local module (``-p my_plugins`` or ``plugin_modules``) that no installed package owns."""
     distribution_version: str
+    file: str = ""
+    """The plugin module's file."""
 
     @property
     def version(self) -> str:
         return self.cls.version
+
+    @property
+    def origin(self) -> str:
+        """Where it came from, for people: ``slamfront 0.1.0``, ``local module my_plugins (./my_plugins.py)``."""
+        if self.distribution:
+            return f"{self.distribution} {self.distribution_version}".rstrip()
+        return f"local module {self.module} ({self.file})" if self.file else f"local module {self.module}"
 
 
 class PluginRegistry:
@@ -69,18 +80,16 @@ class PluginRegistry:
         self, modules: Iterable[str | ModuleType] = (), load_entry_points: bool = True
     ) -> None:
         self.skipped: list[str] = []
+        """Plugins left out because their declaration is invalid, each as ``module: why``."""
         self._plugins: dict[tuple[Kind, str], PluginInfo] = {}
+        self._distributions: dict[str, tuple[str, str]] = {}  # module name -> (distribution, version)
         self._manager = pluggy.PluginManager(hookspecs.PROJECT)
         self._manager.add_hookspecs(hookspecs)
         if os.environ.get("SLAMFRONT_TRACE_HOOKS"):
             self._manager.trace.root.setwriter(sys.stderr.write)
             self._manager.enable_tracing()
         if load_entry_points:
-            try:
-                self._manager.load_setuptools_entrypoints(ENTRY_POINT_GROUP)
-                self._manager.check_pending()
-            except Exception as exc:
-                raise PluginError(f"loading the {ENTRY_POINT_GROUP!r} entry points failed: {exc}") from exc
+            self._load_entry_points()
         for module in modules:
             self._register(module)
         self._collect()
@@ -90,7 +99,30 @@ class PluginRegistry:
         self._register(module)
         self._collect()
 
-    def _register(self, module: str | ModuleType) -> None:
+    def _load_entry_points(self) -> None:
+        """Every module of the ``slamfront`` entry-point group, each checked like a local one
+        (pluggy's own loader would stop at the first bad module with a multi-line message)."""
+        for entry_point in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+            dist = entry_point.dist
+            owner = f"{dist.name} {dist.version}" if dist is not None else "an unknown distribution"
+            if self._manager.get_plugin(entry_point.name) is not None:
+                continue
+            try:
+                module = entry_point.load()
+            except Exception as exc:  # noqa: BLE001 - any import-time failure of a third-party module
+                raise PluginError(
+                    f"entry point {entry_point.name!r} of {owner} ({entry_point.value}) cannot be imported: "
+                    f"{type(exc).__name__}: {exc}"
+                ) from exc
+            self._register(module, name=entry_point.name, owner=owner)
+            if dist is not None:
+                self._distributions[module.__name__] = (dist.name, dist.version)
+
+    def _register(self, module: str | ModuleType, name: str | None = None, owner: str = "") -> None:
+        """Check and register a plugin module.
+
+        :raises PluginError: one line naming the module and the hook at fault.
+        """
         if isinstance(module, str):
             # one-file plugins live in the working directory, as with `python -m`
             if os.getcwd() not in sys.path:
@@ -99,29 +131,41 @@ class PluginRegistry:
                 module = importlib.import_module(module)
             except ImportError as exc:
                 raise PluginError(f"plugin module {module!r} cannot be imported: {exc}") from exc
-        if not self._manager.is_registered(module):
-            try:
-                self._manager.register(module)
-                self._manager.check_pending()  # a misspelt hook name is an error, not a no-op
-            except pluggy.PluginValidationError as exc:
+        if self._manager.is_registered(module):
+            return
+        where = f"plugin module {module.__name__!r}" + (f" (from {owner})" if owner else "")
+        problem = _hookimpl_problem(module)
+        if problem:
+            raise PluginError(f"{where}: {problem}")
+        try:
+            self._manager.register(module, name=name)
+            self._manager.check_pending()  # a hook name unknown to pluggy is an error, not a no-op
+        except (pluggy.PluginValidationError, ValueError) as exc:
+            if self._manager.is_registered(module):
                 self._manager.unregister(module)
-                raise PluginError(f"plugin module {module.__name__!r}: {exc}") from exc
+            raise PluginError(f"{where}: {' '.join(str(exc).split())}") from exc
 
-    def _distribution_of(self) -> dict[str, tuple[str, str]]:
-        found = {}
-        for plugin, dist in self._manager.list_plugin_distinfo():
-            found[plugin.__name__] = (dist.project_name, dist.version)
+    def _distribution_of(self, module: ModuleType) -> tuple[str, str]:
+        """(distribution, version) of a registered module; ("", "") for a local one."""
+        if module.__name__ in self._distributions:
+            return self._distributions[module.__name__]
+        # a module named with -p may still belong to an installed package
+        top = module.__name__.partition(".")[0]
+        owners = importlib.metadata.packages_distributions().get(top, ())
+        found = (owners[0], importlib.metadata.version(owners[0])) if owners else ("", "")
+        self._distributions[module.__name__] = found
         return found
 
     def _collect(self) -> None:
         self.skipped = []
         self._plugins = {}
-        dists = self._distribution_of()
         for kind in KINDS:
             hook = getattr(self._manager.hook, HOOK_OF_KIND[kind])
             for impl in hook.get_hookimpls():
-                module_name = impl.plugin_name if not inspect.ismodule(impl.plugin) else impl.plugin.__name__
-                dist, dist_version = dists.get(module_name, ("(not installed)", ""))
+                module = impl.plugin
+                module_name = module.__name__ if inspect.ismodule(module) else impl.plugin_name
+                dist, dist_version = self._distribution_of(module) if inspect.ismodule(module) else ("", "")
+                file = getattr(module, "__file__", None) or ""
                 result = impl.function()
                 for cls in result or ():
                     problem = _declaration_problem(cls, kind)
@@ -134,7 +178,7 @@ class PluginRegistry:
                         raise PluginError(
                             f"two {kind} plugins are named {cls.name!r}: one from {other}, one from {module_name}"
                         )
-                    self._plugins[key] = PluginInfo(kind, cls.name, cls, module_name, dist, dist_version)
+                    self._plugins[key] = PluginInfo(kind, cls.name, cls, module_name, dist, dist_version, file)
 
     def names(self, kind: Kind) -> list[str]:
         """Plugin names of one kind, sorted."""
@@ -150,11 +194,7 @@ class PluginRegistry:
         try:
             return self._plugins[(kind, name)]
         except KeyError:
-            known = self.names(kind)
-            close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
-            hint = f"did you mean {' or '.join(repr(c) for c in close)}?" if close else (
-                f"known {kind} plugins: {', '.join(known) or 'none'}"
-            )
+            hint = did_you_mean(name, self.names(kind), f"{kind} plugins")
             skipped = f" (skipped as invalid: {'; '.join(self.skipped)})" if self.skipped else ""
             raise PluginError(f"unknown {kind} plugin {name!r}; {hint}{skipped}") from None
 
@@ -167,6 +207,31 @@ class PluginRegistry:
     def modules(self) -> Sequence[str]:
         """Names of the registered plugin modules."""
         return sorted(self._manager.get_name(p) or str(p) for p in self._manager.get_plugins())
+
+
+def _hookimpl_problem(module: ModuleType) -> str | None:
+    """What is wrong with ``module``'s hook implementations (a misspelt hook, an argument
+    the hook does not pass), said in one line, or None when they are fine."""
+    marker = f"{hookspecs.PROJECT}_impl"  # the attribute @slamfront.hookimpl sets
+    spec_marker = f"{hookspecs.PROJECT}_spec"
+    hooks = [name for name, value in vars(hookspecs).items() if hasattr(value, spec_marker)]
+    for attribute, function in sorted(vars(module).items()):
+        options = getattr(function, marker, None)
+        if not isinstance(options, dict) or not callable(function):
+            continue
+        hook = options.get("specname") or attribute
+        if hook not in hooks:
+            return f"{attribute}: no hook is called {hook!r}; {did_you_mean(hook, hooks, 'hooks')}"
+        expected = list(inspect.signature(getattr(hookspecs, hook)).parameters)
+        given = list(inspect.signature(function).parameters)
+        unexpected = [name for name in given if name not in expected]
+        if unexpected:
+            takes = f"takes only {', '.join(expected)}" if expected else "is called with no arguments"
+            return (
+                f"hook {hook}({', '.join(given)}): the hook {takes}; "
+                f"remove {', '.join(repr(u) for u in unexpected)}"
+            )
+    return None
 
 
 def _declaration_problem(cls: object, kind: Kind) -> str | None:

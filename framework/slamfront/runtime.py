@@ -15,6 +15,7 @@ written, :mod:`slamfront.interrupts`). Its last ``/log`` line says how the run e
 from __future__ import annotations
 
 import json
+import logging
 import os
 import platform
 import time
@@ -28,10 +29,11 @@ import numpy as np
 from tqdm import tqdm
 
 import slamfront
-from slamfront.errors import SlamfrontError
+from slamfront.errors import SlamfrontError, note_run_failure
 from slamfront.evaluation import EvaluationContext, EvaluationReport, evaluations_for
 from slamfront.feeds import FrameFeed, SourceFeed
 from slamfront.interrupts import Interrupts, RunInterrupted
+from slamfront.logcapture import RunLogCapture
 from slamfront.mcaplog import foxglove
 from slamfront.mcaplog.reader import LoggedMessage
 from slamfront.mcaplog.scene import SceneLogger
@@ -53,12 +55,16 @@ from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
+from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
+from slamfront.resources import layout_for
 
 __all__ = [
     "CALIBRATION_TOPIC", "DEPTH_TOPIC", "FRAMES_TOPIC", "GROUND_TRUTH_TOPIC", "IMAGE_TOPIC", "LOG_TOPIC",
     "METRICS_TOPIC", "TF_TOPIC", "RunInterrupted", "RunResult", "execute_run", "run_pipeline", "topic_for",
 ]
+
+logger = logging.getLogger(__name__)
 
 @dataclass
 class RunResult:
@@ -69,11 +75,13 @@ class RunResult:
     metrics_path: Path
     report_path: Path
     metrics: dict[str, Any]
+    html_path: Path | None = None
+    """``report.html``: the report as one self-contained page (plots inlined)."""
 
 
 @dataclass
 class StageTimer:
-    """Per-frame wall time of each stage (float32 seconds; 4 bytes per frame and stage)."""
+    """Per-frame wall time of the source and of each stage."""
 
     samples: dict[str, list[float]] = field(default_factory=dict)
     finish_seconds: dict[str, float] = field(default_factory=dict)
@@ -130,7 +138,7 @@ def _record_provenance(
         described = getattr(plugin, "provenance", None)  # a replay's source says where it read from
         if described is None:
             info = pipeline.registry.get(kind, plugin.name)
-            described = f"{plugin.name}=={plugin.version} ({info.distribution} {info.distribution_version})"
+            described = f"{plugin.name}=={plugin.version} ({info.origin})"
         plugins[kind] = described
         log.add_metadata(f"params.{kind}", {"plugin": plugin.name, "params": plugin.config.model_dump_json()})
     log.add_metadata("plugins", plugins)
@@ -231,112 +239,165 @@ def execute_run(
     statistics: dict[str, dict[str, Any]] = {}
     n_frames, last_stamp = 0, 0
     ending = ("error", "run failed before the first frame")
+    where = "before the first frame"  # what the run was doing, for the message if it fails
+    log_opened = False
     started = time.perf_counter()
     library = f"slamfront {slamfront.__version__}"
     options = recipe.log
-    with (
-        Interrupts() as interrupts,
-        RunLogWriter(
-            log_path, options.compression, options.chunk_size, library, options.sync_seconds, interrupts.critical
-        ) as log,
-    ):
-        with clock:
-            _record_provenance(log, pipeline, origin, metadata or {})
-        total = feed.total()
-        bar = tqdm(
-            total=total if max_frames is None or total is None else min(total, max_frames),
-            desc=recipe.name,
-            unit="frame",
-            disable=None if progress is None else not progress,  # None: only on a terminal
-        )
-        try:
-            for step in feed.steps():
-                if max_frames is not None and n_frames >= max_frames:
-                    break
-                frame = step.frame
-                last_stamp = frame.timestamp_ns
+    capture = RunLogCapture(_logger_packages(pipeline), options.level)
+    try:
+        with (
+            capture,
+            Interrupts() as interrupts,
+            RunLogWriter(
+                log_path, options.compression, options.chunk_size, library, options.sync_seconds,
+                interrupts.critical,
+            ) as log,
+        ):
+            log_opened = True
+            with clock:
+                _record_provenance(log, pipeline, origin, metadata or {})
+            _warn_if_no_query_is_reached(pipeline, feed, max_frames)
+            total = feed.total()
+            bar = tqdm(
+                total=total if max_frames is None or total is None else min(total, max_frames),
+                desc=recipe.name,
+                unit="frame",
+                disable=None if progress is None else not progress,  # None: only on a terminal
+            )
+            try:
+                steps = iter(feed.steps())
+                while max_frames is None or n_frames < max_frames:
+                    where = f"in the {pipeline.source.name} source reading frame {n_frames}"
+                    tick = time.perf_counter()
+                    step = next(steps, None)
+                    if step is None:
+                        break
+                    timer.add("source", time.perf_counter() - tick)
+                    frame = step.frame
+                    last_stamp = frame.timestamp_ns
+                    with clock:
+                        capture.flush(log, last_stamp)
+                        info = feed.log_frame(log, step)
+                    observers.observe("frames", info)
+                    inputs = StageInputs(frame=frame, outputs={}, stages={})
+                    for stage in stages:
+                        if stage.kind in recorded:
+                            with clock:
+                                produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
+                        else:
+                            where = f"in the {stage.kind} plugin {stage.name!r} at frame {frame.index}"
+                            tick = time.perf_counter()
+                            produced = list(stage.process(inputs))
+                            timer.add(stage.kind, time.perf_counter() - tick)
+                            with clock:
+                                capture.flush(log, last_stamp)
+                                _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                        inputs.outputs[stage.kind] = produced
+                        inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
+                    n_frames += 1
+                    if scene is not None:
+                        with clock:
+                            scene.after_frame(log, last_stamp)
+                    bar.update()
                 with clock:
-                    info = feed.log_frame(log, step)
-                observers.observe("frames", info)
-                inputs = StageInputs(frame=frame, outputs={}, stages={})
+                    log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
+                recorded_finish = feed.recorded_finish()
                 for stage in stages:
                     if stage.kind in recorded:
                         with clock:
-                            produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
-                    else:
-                        tick = time.perf_counter()
-                        produced = list(stage.process(inputs))
-                        timer.add(stage.kind, time.perf_counter() - tick)
-                        with clock:
-                            _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
-                    inputs.outputs[stage.kind] = produced
-                    inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
-                n_frames += 1
-                if scene is not None:
+                            _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
+                        continue
+                    where = f"in the {stage.kind} plugin {stage.name!r} finishing the run"
+                    tick = time.perf_counter()
+                    produced = list(stage.finish())
+                    timer.finish_seconds[stage.kind] = time.perf_counter() - tick
                     with clock:
-                        scene.after_frame(log, last_stamp)
-                bar.update()
-            with clock:
-                log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
-            recorded_finish = feed.recorded_finish()
-            for stage in stages:
-                if stage.kind in recorded:
+                        capture.flush(log, last_stamp)
+                        _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                for stage in stages:
+                    where = f"in the {stage.kind} plugin {stage.name!r} giving its statistics"
+                    values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
+                    statistics[stage.kind] = values
                     with clock:
-                        _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
-                    continue
-                tick = time.perf_counter()
-                produced = list(stage.finish())
-                timer.finish_seconds[stage.kind] = time.perf_counter() - tick
+                        log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
+                seconds = time.perf_counter() - started
+                ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
+            except KeyboardInterrupt as exc:
+                ending = ("warning", f"run interrupted ({str(exc) or 'SIGINT'}) after {n_frames} frames")
+                raise
+            except SlamfrontError as exc:
+                ending = ("error", f"run stopped by bad input after {n_frames} frames: {exc}")
+                raise
+            except BaseException as exc:
+                ending = ("error", f"run failed after {n_frames} frames {where}: {type(exc).__name__}: {exc}")
+                raise
+            finally:
+                bar.close()
                 with clock:
-                    _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                    capture.flush(log, last_stamp)  # what the failing call logged, too
+                    if scene is not None:
+                        scene.write(log, last_stamp)
+                    note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                    log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
+
+            where = "while evaluating the run"
+            metrics: dict[str, Any] = {
+                "recipe": recipe.name,
+                "seconds": seconds,
+                "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
+                "n_frames": n_frames,
+            }
             for stage in stages:
-                values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
-                statistics[stage.kind] = values
-                with clock:
-                    log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
-            seconds = time.perf_counter() - started
-            ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
-        except KeyboardInterrupt as exc:
-            ending = ("warning", f"run interrupted ({exc or 'SIGINT'}) after {n_frames} frames")
-            raise
-        except SlamfrontError as exc:
-            ending = ("error", f"run stopped by bad input after {n_frames} frames: {exc}")
-            raise
-        except BaseException as exc:
-            ending = ("error", f"run failed after {n_frames} frames: {type(exc).__name__}: {exc}")
-            raise
-        finally:
-            bar.close()
+                for key, value in statistics[stage.kind].items():
+                    metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
+            names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
+            context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
+            sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
+            for section in sections:
+                metrics.update(section.metrics)
+            metrics["timing"] = timer.summary()
             with clock:
-                if scene is not None:
-                    scene.write(log, last_stamp)
-                note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
-                log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
+                capture.flush(log, last_stamp)
+                log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
+                log.close()
 
-        metrics: dict[str, Any] = {
-            "recipe": recipe.name,
-            "seconds": seconds,
-            "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
-            "n_frames": n_frames,
-        }
-        for stage in stages:
-            for key, value in statistics[stage.kind].items():
-                metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
-        names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
-        context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
-        sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
-        for section in sections:
-            metrics.update(section.metrics)
-        metrics["timing"] = timer.summary()
-        with clock:
-            log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
-            log.close()
+        where = "while writing metrics.json and the report"
+        metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
+        sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
+        metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
+        report_path = write_report(out_dir, recipe, origin, metrics, sections)
+        html_path = write_html(report_path)
+    except BaseException as exc:
+        if log_opened:
+            note_run_failure(exc, log_path, where)
+        raise
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path)
 
-    metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-    sections.append(_log_section(metrics))
-    metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
-    report_path = write_report(out_dir, recipe, origin, metrics, sections)
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics)
+
+def _logger_packages(pipeline: Pipeline) -> set[str]:
+    """The top-level logger names whose records the run keeps: slamfront's and each plugin's package."""
+    return {"slamfront", *(type(plugin).__module__.partition(".")[0] for plugin in pipeline.plugins.values())}
+
+
+def _warn_if_no_query_is_reached(pipeline: Pipeline, feed: FrameFeed, max_frames: int | None) -> None:
+    """Say so when ``max_frames`` ends the run before the first query that has a true match:
+    a loop detector or localizer then scores 0 for want of queries, not for being wrong."""
+    if max_frames is None or not {"loop_detector", "localizer"} & set(pipeline.plugins):
+        return
+    try:
+        truth = feed.loop_ground_truth()
+    except Exception:  # noqa: BLE001 - only a hint; the run reports a real failure where it matters
+        return
+    if truth is None:
+        return
+    with_match = truth.queries[np.diff(truth.indptr) > 0]
+    if len(with_match) and with_match[0] >= max_frames:
+        logger.warning(
+            "--max-frames %d stops the run before frame %d, the first query frame with a true match: "
+            "no query is scored (recall will be 0); raise --max-frames above %d",
+            max_frames, with_match[0], with_match[0],
+        )
 
 
 def _log_statistics(
@@ -354,7 +415,7 @@ def _log_statistics(
     }
 
 
-def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
+def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     rows = [
         ("size", f"{metrics['log_bytes'] / 1e6:.2f} MB ({metrics['log_bytes_per_frame'] / 1024:.1f} KiB per frame)"),
         ("messages", str(metrics["log_messages"])),
@@ -365,8 +426,8 @@ def _log_section(metrics: dict[str, Any]) -> EvaluationReport:
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
         "Writing includes encoding the images, serialising every message, chunk compression "
-        "and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with "
-        "`foxglove/slamfront-layout.json`."
+        f"and the periodic fsync (`log.sync_seconds`). Open `run.mcap` in Foxglove with the shipped layout "
+        f"`{layout}` (`slamfront layout {layout}` prints where it is)."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 

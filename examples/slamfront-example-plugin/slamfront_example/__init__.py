@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 
 import cv2
@@ -10,6 +11,8 @@ from pydantic import Field
 
 import slamfront
 from slamfront.messages import Features
+
+logger = logging.getLogger(__name__)  # its records go to the run's /log; warnings also to the terminal
 
 
 class ColourHistogram(slamfront.Descriptor):
@@ -26,8 +29,15 @@ class ColourHistogram(slamfront.Descriptor):
         hue_bins: int = Field(16, ge=2, le=180, description="bins over hue")
         saturation_bins: int = Field(8, ge=2, le=256, description="bins over saturation")
 
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        self._warned_grey = False
+
     def process(self, inputs: slamfront.StageInputs) -> Sequence[Features]:
         image = inputs.frame.image
+        if image.ndim == 2 and not self._warned_grey:
+            logger.warning("frame %d is grey: hue carries nothing, only saturation 0 is filled", inputs.frame.index)
+            self._warned_grey = True
         rgb = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
         hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
         bins = [self.config.hue_bins, self.config.saturation_bins]

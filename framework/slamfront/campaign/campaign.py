@@ -107,7 +107,9 @@ def run_campaign(
                     records[run.key] = store.record(run, folders[run.key], outcome)
                     counts[outcome.status] += 1
                     if outcome.status == "failed":
-                        bar.write(f"failed: {run.describe()}: {outcome.error}", file=sys.stderr)
+                        log = folders[run.key] / "run.mcap"
+                        where = f" (the log written so far: {log})" if log.is_file() else ""
+                        bar.write(f"failed: {run.describe()}: {outcome.error}{where}", file=sys.stderr)
                     bar.set_postfix(counts, refresh=False)
                     bar.update()
     except KeyboardInterrupt:

@@ -1,4 +1,5 @@
-"""A campaign's ``report.md``: counts, the results table, the failures and the figures."""
+"""A campaign's ``report.md`` and ``report.html``: counts, the results table (each run linked
+to its own report), the failures and the figures."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 from slamfront.campaign.plan import short_name
 from slamfront.campaign.results import ResultsTable, cell
 from slamfront.campaign.sweepfile import Sweep
+from slamfront.report.html import write_html
 
 
 def _shown(value: object) -> str:
@@ -50,4 +52,5 @@ def write_campaign_report(
         lines += [f"![{p.name}]({p.relative_to(out_dir).as_posix()})\n" for p in figures]
     path = out_dir / "report.md"
     path.write_text("\n".join(lines).rstrip() + "\n")
+    write_html(path)  # report.html beside it, its links to the runs' reports pointing at their pages
     return path

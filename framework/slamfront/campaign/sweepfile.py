@@ -14,9 +14,9 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from slamfront.data import checkout_root
 from slamfront.errors import RecipeError
 from slamfront.recipe import _format_validation, find_named_file, find_recipe, read_yaml_mapping
+from slamfront.resources import shipped_dir
 
 Overrides = dict[str, Any]
 """``{"a.b.c": value}``: what ``--set a.b.c=value`` would do."""
@@ -128,13 +128,13 @@ class Sweep(_Strict):
 
 
 def sweeps_dir() -> Path:
-    """The shipped sweeps (``sweeps/`` in the checkout)."""
-    return checkout_root() / "sweeps"
+    """The shipped sweeps (installed package data; ``sweeps/`` in the repository)."""
+    return shipped_dir("sweeps")
 
 
 def find_sweep(name_or_path: str | Path) -> Path:
     """A sweep file: a path as given, or the name of a shipped sweep."""
-    return find_named_file(name_or_path, sweeps_dir(), "sweep", f"shipped sweeps are in {sweeps_dir()}")
+    return find_named_file(name_or_path, sweeps_dir(), "sweep", "shipped sweeps: `slamfront sweeps`")
 
 
 def read_sweep(path: Path) -> Sweep:
@@ -143,7 +143,7 @@ def read_sweep(path: Path) -> Sweep:
     try:
         return Sweep.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(f"{path}: {_format_validation(exc, '').replace('Value error, ', '')}") from exc
+        raise RecipeError(f"{path}: {_format_validation(exc, '', Sweep).replace('Value error, ', '')}") from exc
 
 
 def resolve_recipe(sweep_path: Path, field: str, recipe: str) -> Path:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from slamfront.errors import SlamfrontError
+from slamfront.errors import SlamfrontError, run_failure_of
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import run_pipeline
 
@@ -94,7 +94,8 @@ def run_one(task: RunTask) -> RunOutcome:
             outcome.error = f"{type(exc).__name__}: {exc}"
             (out_dir / ERROR_FILE).write_text(outcome.error + "\n")
         except Exception as exc:  # a plugin's bug must not stop the campaign: record it with its traceback
-            outcome.error = f"{type(exc).__name__}: {exc}"
+            failure = run_failure_of(exc)
+            outcome.error = f"{type(exc).__name__}: {exc}" + (f" ({failure.where})" if failure else "")
             (out_dir / ERROR_FILE).write_text(traceback.format_exc())
         outcome.wall_seconds = time.perf_counter() - started
         if task.out_dir is None:

@@ -2,13 +2,18 @@
 
 Each sub-command is a module here with ``add_parser(subparsers)`` and ``run(args) ->
 int``; :data:`COMMANDS` lists them in the order ``--help`` shows them. User errors
-(:class:`~slamfront.errors.SlamfrontError`) become one line on stderr and exit code 2.
+(:class:`~slamfront.errors.SlamfrontError`) become one line on stderr and exit code 2;
+when they stop a run, the line also says where the log written so far is. A plugin's
+exception keeps its traceback, followed by the same line (exit code 1).
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import sys
+import traceback
 from collections.abc import Sequence
 
 import slamfront
@@ -21,14 +26,15 @@ from slamfront.cli import (
     optimize_cmd,
     outliers_cmd,
     plugins_cmd,
-    recipes_cmd,
     recover_cmd,
     replay_cmd,
     retrieval_cmd,
     run_cmd,
+    shipped_cmd,
     sweep_cmd,
 )
-from slamfront.errors import SlamfrontError
+from slamfront.errors import SlamfrontError, run_failure_of
+from slamfront.logcapture import TerminalHandler
 
 COMMANDS = (
     run_cmd,
@@ -41,7 +47,7 @@ COMMANDS = (
     inspect_cmd,
     diff_cmd,
     recover_cmd,
-    recipes_cmd,
+    shipped_cmd,
     datasets_cmd,
     optimize_cmd,
     outliers_cmd,
@@ -54,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins, evaluate.",
     )
     parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
-    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, help="what to do")
     for command in COMMANDS:
         command.add_parser(commands)
     return parser
@@ -62,17 +68,40 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (see docs: shell completion)
+        import argcomplete
+
+        argcomplete.autocomplete(parser)
     args = parser.parse_args(argv)
+    terminal = TerminalHandler()  # plugins' and slamfront's warnings, above the progress bar
+    logging.getLogger().addHandler(terminal)
     try:
         return int(args.handler(args) or 0)
     except SlamfrontError as exc:
-        print(f"slamfront: error: {exc}", file=sys.stderr)
+        failure = run_failure_of(exc)
+        where = f" (the log written so far: {failure.log})" if failure else ""
+        print(f"slamfront: error: {exc}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        print(f"slamfront: interrupted ({exc or 'SIGINT'}); the log written so far is finalised", file=sys.stderr)
+        failure = run_failure_of(exc)
+        where = f": {failure.log}" if failure else ""
+        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}); the log written so far is finalised{where}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `slamfront plugins | head`
         return 0
+    except Exception as exc:
+        failure = run_failure_of(exc)
+        if failure is None:
+            raise  # a bug outside any run: Python's own traceback says it all
+        traceback.print_exc()  # a plugin's (or slamfront's) bug: its author needs the traceback
+        print(
+            f"slamfront: error: the run failed {failure.where}: {type(exc).__name__}: {exc}; "
+            f"the log written so far is finalised: {failure.log}",
+            file=sys.stderr,
+        )
+        return 1
+    finally:
+        logging.getLogger().removeHandler(terminal)
 
 
 if __name__ == "__main__":

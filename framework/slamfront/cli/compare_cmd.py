@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from slamfront.campaign import LocalBackend
+from slamfront.cli.completion import complete_recipes
 from slamfront.compare import compare
 
 
@@ -15,11 +16,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="run several loop-closure recipes through one harness and compare them",
         description=(
             "Run each recipe (a campaign: parallel, resumable, each run with its own log in DIR/runs/) "
-            "and write DIR/comparison.md: recall at 100%% precision and AUC-PR (zeta 3 and 1), search "
+            "and write DIR/comparison.md and DIR/comparison.html (a page linking every run's report): recall at 100 % precision and AUC-PR (zeta 3 and 1), search "
             "space and speed per method, all PR curves on one plot (pr_all.png), each method's match plot."
         ),
     )
-    parser.add_argument("recipes", nargs="+", help="recipe files or shipped recipe names")
+    recipe_arg = parser.add_argument("recipes", nargs="+", help="recipe files or shipped recipe names")
+    recipe_arg.completer = complete_recipes  # type: ignore[attr-defined]
     parser.add_argument("-o", "--out", type=Path, default=Path("logs/compare"), help="output folder")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override applied to every recipe (repeatable)")
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         args.recipes, args.out, LocalBackend(args.workers), args.overrides, max_frames=args.max_frames,
         progress=False if args.quiet else None, force=args.force,
     )
-    print(f"comparison: {result.report_path}")
+    print(f"comparison: {result.report_path.with_suffix('.html')}")
     print(f"results:    {result.campaign.results_csv}")
     failed = result.campaign.count("failed")
     return 1 if failed else 0

@@ -1,29 +1,52 @@
-"""``slamfront datasets [list | download NAME | path NAME]``: the public datasets sources can read."""
+"""``slamfront datasets [list | path [NAME] | download NAME | fetch [NAME ...] [--for-tests]]``.
+
+``download`` fetches a public dataset a source plugin declares (an archive from its
+publisher); ``fetch`` fetches the pinned datasets of the manifest (the real data the
+tests read) file by file, verified against their SHA-256. Where data lives is the rule
+of :mod:`slamfront.data`.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from pathlib import Path
 
-from slamfront.data import cache_root, data_root
-from slamfront.datasets import DatasetDownload, fetch
+from slamfront.data import DATA_ENV, data_root, download_root, user_data_dir
+from slamfront.datasets import DatasetDownload, UnreachableError, fetch
 from slamfront.errors import DataError
+from slamfront.manifest import MIRROR_ENV, PinnedDataset, PinnedFile, fetch_dataset, load_manifest
 from slamfront.registry import PluginRegistry
+from slamfront.suggest import did_you_mean
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "datasets",
-        help="list the public datasets and download one into the cache",
+        help="list, locate, download and fetch the real datasets",
         description=(
-            "Public datasets the installed source plugins read. `download NAME` fetches one (official URL, "
-            "resumable, checksum) into $SLAMFRONT_CACHE or ~/.cache/slamfront and extracts it there."
+            "The real datasets: `list` shows the public datasets the installed sources read and the pinned "
+            "datasets the tests read; `path` prints the data root (or where NAME is); `download NAME` fetches "
+            "a source's dataset (official URL, resumable, checksum); `fetch --for-tests` fetches the pinned "
+            "datasets missing from the data root, file by file, each checked against its SHA-256. "
+            f"The data root is ${DATA_ENV}, else shared/data beside a source checkout, else {user_data_dir()}; "
+            f"downloads go to ${DATA_ENV}, else {user_data_dir()}."
         ),
     )
-    parser.add_argument("action", nargs="?", choices=("list", "download", "path"), default="list")
-    parser.add_argument("name", nargs="?", help="dataset name (download, path)")
-    parser.add_argument("--url", help="download from this URL instead (a mirror, or file:///path/to/archive)")
-    parser.add_argument("--cache", type=Path, help="cache folder (default: $SLAMFRONT_CACHE or ~/.cache/slamfront)")
+    parser.add_argument(
+        "action", nargs="?", choices=("list", "path", "download", "fetch"), default="list",
+        help="list: every dataset and whether it is here (default); path [NAME]: print the data root, or "
+        "where NAME is read from; download NAME: fetch a source's dataset; fetch --for-tests: fetch the "
+        "pinned datasets the tests read",
+    )
+    parser.add_argument("names", nargs="*", metavar="NAME", help="dataset name(s)")
+    parser.add_argument("--for-tests", action="store_true", help="fetch: every pinned dataset the tests read")
+    parser.add_argument(
+        "--url", help=f"download: from this URL instead (a mirror, or file:///path/to/archive); fetch: a mirror "
+        f"base URL serving a copy of a data root, <URL>/<folder>/<file> (default: ${MIRROR_ENV}, else the origins)",
+    )
+    parser.add_argument("--dir", type=Path, help="download folder for `download` (default: the download root)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
 
@@ -38,28 +61,108 @@ def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, Da
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.action == "fetch":
+        return _fetch(args)
+    if args.action == "path" and not args.names:
+        print(data_root())
+        return 0
     datasets = catalogue()
-    cache = args.cache or cache_root()
+    into = args.dir or download_root()
     if args.action == "list":
-        width = max((len(n) for n in datasets), default=4)
-        for name, (source, spec) in sorted(datasets.items()):
-            if spec.is_installed(cache):
-                state = "downloaded"
-            elif (data_root() / name).is_dir():
-                state = "in data root"
-            else:
-                state = "manual download" if spec.url is None else "not downloaded"
-            print(f"{name:<{width}}  source: {source:<14} {state:<15} {spec.title}")
-        print(f"\ncache: {cache}")
-        return 0
-    if not args.name:
-        raise DataError(f"`slamfront datasets {args.action}` needs a dataset name: {', '.join(sorted(datasets))}")
-    if args.name not in datasets:
-        raise DataError(f"unknown dataset {args.name!r}; known: {', '.join(sorted(datasets)) or 'none'}")
-    source, spec = datasets[args.name]
+        return _list(datasets, into)
+    if len(args.names) != 1:
+        raise DataError(f"`slamfront datasets {args.action}` needs one dataset name: {', '.join(sorted(datasets))}")
+    name = args.names[0]
+    if name not in datasets:
+        raise DataError(f"unknown dataset {name!r}; {did_you_mean(name, datasets, 'datasets')}")
+    source, spec = datasets[name]
     if args.action == "path":
-        print(spec.folder(cache))
+        shared = data_root() / name
+        print(shared if shared.is_dir() and args.dir is None else spec.folder(into))
         return 0
-    folder = fetch(spec, cache, url=args.url, progress=False if args.quiet else None)
+    folder = fetch(spec, into, url=args.url, progress=False if args.quiet else None)
     print(f"{spec.name}: {folder} (read it with the {source!r} source)")
     return 0
+
+
+def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
+    width = max((len(n) for n in datasets), default=4)
+    print("Public datasets the sources read (`slamfront datasets download NAME`):")
+    for name, (source, spec) in sorted(datasets.items()):
+        if spec.is_installed(into):
+            state = "downloaded"
+        elif (data_root() / name).is_dir():
+            state = "in data root"
+        else:
+            state = "manual download" if spec.url is None else "not downloaded"
+        print(f"  {name:<{width}}  source: {source:<14} {state:<15} {spec.title}")
+    pinned = load_manifest()
+    width = max(len(d.name) for d in pinned)
+    print("\nPinned datasets the tests read (`slamfront datasets fetch --for-tests`):")
+    for dataset in pinned:
+        print(f"  {dataset.name:<{width}}  {dataset.folder:<28} {dataset.size / 1e6:6.1f} MB  {dataset.licence}")
+    print(f"\ndata root: {data_root()}\ndownloads: {into}")
+    return 0
+
+
+def _fetch(args: argparse.Namespace) -> int:
+    pinned = {d.name: d for d in load_manifest()}
+    if args.for_tests == bool(args.names):
+        raise DataError(f"`slamfront datasets fetch` needs --for-tests or pinned dataset names: {', '.join(pinned)}")
+    unknown = [n for n in args.names if n not in pinned]
+    if unknown:
+        raise DataError(f"unknown pinned dataset {unknown[0]!r}; known: {', '.join(pinned)}")
+    chosen = list(pinned.values()) if args.for_tests else [pinned[n] for n in args.names]
+    root = data_root()
+    damaged = {d.name: d.damaged(root) for d in chosen}
+    todo = [d for d in chosen if damaged[d.name]]
+    n_files = sum(len(d.files) for d in chosen)
+    if not todo:
+        print(f"test data: {n_files} files of {len(chosen)} datasets present and verified in {root}")
+        return 0
+    if root != download_root():
+        raise DataError(
+            f"{root}: {sum(len(v) for v in damaged.values())} pinned files are missing or differ "
+            f"({', '.join(d.name for d in todo)}); this folder beside the checkout is read, never written: "
+            f"set {DATA_ENV}=DIR to fetch into DIR"
+        )
+    mirror = args.url or os.environ.get(MIRROR_ENV) or None
+    failed = _fetch_each(todo, damaged, root, mirror, progress=False if args.quiet else None)
+    if failed:
+        raise DataError(
+            f"{len(failed)} of {len(chosen)} pinned datasets are incomplete in {root}: put the files named above "
+            f"there by hand (as <folder>/<file>), or give a mirror with --url BASE or ${MIRROR_ENV}; "
+            "then run the same command again (what is already fetched is kept)"
+        )
+    print(f"test data: {n_files} files of {len(chosen)} datasets present and verified in {root}")
+    return 0
+
+
+def _fetch_each(
+    todo: list[PinnedDataset], damaged: dict[str, list[PinnedFile]], root: Path, mirror: str | None,
+    progress: bool | None,
+) -> list[str]:
+    """Fetch each dataset; one line on stderr for each that fails. Once a host is unreachable
+    (offline), the rest are listed without trying, so offline costs no time-outs."""
+    failed: list[str] = []
+    offline: str | None = None
+    for dataset in todo:
+        missing = damaged[dataset.name]
+        where = mirror or dataset.origin
+        line = (f"{dataset.name}: {len(missing)} of {len(dataset.files)} files ({sum(f.size for f in missing) / 1e6:.1f} MB) "
+                f"missing or damaged in {root / dataset.folder}; get them from {where}")
+        if offline is not None:
+            print(f"{line} ({offline})", file=sys.stderr)
+            failed.append(dataset.name)
+            continue
+        try:
+            fetch_dataset(dataset, root, mirror, progress=progress)
+        except UnreachableError as exc:
+            cause = exc.__cause__
+            offline = f"unreachable: {getattr(cause, 'reason', cause) or exc}"
+            print(f"{line} ({offline})", file=sys.stderr)
+            failed.append(dataset.name)
+        except DataError as exc:
+            print(f"{line} ({exc})", file=sys.stderr)
+            failed.append(dataset.name)
+    return failed

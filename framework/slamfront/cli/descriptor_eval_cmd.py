@@ -48,7 +48,8 @@ def add_parser(tools: argparse._SubParsersAction) -> None:
     parser.add_argument("--neighbours", type=int, default=10, help="local test: frames either side (default 10)")
     parser.add_argument("--top", type=int, default=5, help="global test: most similar frames listed (default 5)")
     parser.add_argument("--max-features", type=int, default=1000, help="keypoints per frame (default 1000)")
-    parser.add_argument("--geometry", choices=("fundamental", "homography", "none"), default="fundamental")
+    parser.add_argument("--geometry", choices=("fundamental", "homography", "none"), default="fundamental",
+                        help="RANSAC model that verifies the matches (default fundamental)")
     parser.add_argument("--step", type=int, default=1, help="use every step-th frame")
     parser.add_argument("--limit", type=int, help="use at most this many frames")
     parser.add_argument("-o", "--out", type=Path, help="output folder (default logs/descriptor_eval/<source>)")

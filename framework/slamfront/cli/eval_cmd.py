@@ -22,7 +22,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="evaluate outside a run: trajectories (ATE/RPE), local descriptors (Barbosa 2017 ch. 5.1)",
         description="Evaluation tools that work on files, outside a recipe run.",
     )
-    tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True)
+    tools = parser.add_subparsers(dest="tool", metavar="TOOL", required=True, help="the evaluation to run")
     traj = tools.add_parser(
         "traj",
         help="ATE and RPE of an estimated trajectory against the ground truth",
@@ -32,8 +32,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "are associated by timestamp; the other formats pose by pose."
         ),
     )
-    traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH")
-    traj.add_argument("estimate", type=Path, metavar="ESTIMATE")
+    traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH", help="the ground-truth trajectory file")
+    traj.add_argument("estimate", type=Path, metavar="ESTIMATE", help="the estimated trajectory file")
     traj.add_argument("--format", choices=sorted(TRAJECTORY_READERS), default="tum", help="file format (default tum)")
     traj.add_argument("--align", choices=("se3", "sim3", "none"), default="se3",
                       help="alignment before ATE: rigid (default), with scale (monocular), or none")

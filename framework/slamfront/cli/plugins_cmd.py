@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from slamfront.plugin import KINDS
 from slamfront.registry import PluginRegistry
@@ -24,6 +25,8 @@ def run(args: argparse.Namespace) -> int:
     registry = PluginRegistry(modules=args.plugin_module)
     infos = registry.all(args.kind)
     if args.json:
+        for problem in registry.skipped:  # stdout stays one JSON document
+            print(f"slamfront: warning: invalid plugin skipped: {problem}", file=sys.stderr)
         print(json.dumps(
             [
                 {
@@ -34,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
                     "doc": (info.cls.__doc__ or "").strip(),
                     "module": info.module,
                     "distribution": info.distribution,
+                    "origin": info.origin,
                     "config_schema": info.cls.Config.model_json_schema(),
                 }
                 for info in infos
@@ -41,13 +45,17 @@ def run(args: argparse.Namespace) -> int:
             indent=2,
         ))
         return 0
+    if registry.skipped:  # first, where the author of the plugin looks
+        print("invalid plugins, skipped (fix these to use them):")
+        for problem in registry.skipped:
+            print(f"  {problem}")
     width = max((len(i.name) for i in infos), default=4)
     current = None
     for info in infos:
         if info.kind != current:
             current = info.kind
             print(f"\n{current}:")
-        origin = "" if info.distribution == "slamfront" else f"  [{info.distribution}]"
+        origin = "" if info.distribution == "slamfront" else f"  [{info.origin}]"
         print(f"  {info.name:<{width}}  {info.cls.summary()}{origin}")
         for field_name, field in info.cls.Config.model_fields.items():
             if field.is_required():
@@ -55,6 +63,4 @@ def run(args: argparse.Namespace) -> int:
             else:
                 shown = repr(field.default if field.default_factory is None else field.default_factory())
             print(f"  {'':<{width}}    {field_name} = {shown}  {field.description or ''}".rstrip())
-    for problem in registry.skipped:
-        print(f"\nskipped: {problem}")
     return 0

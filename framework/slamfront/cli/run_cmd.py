@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slamfront.cli.completion import complete_overrides, complete_recipes
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.runtime import RunResult, run_pipeline
 
@@ -12,15 +13,18 @@ from slamfront.runtime import RunResult, run_pipeline
 def add_parser(commands: argparse._SubParsersAction) -> None:
     parser = commands.add_parser(
         "run",
-        help="run a recipe: writes run.mcap, metrics.json and report.md",
-        description="Run a recipe. Writes DIR/run.mcap, DIR/metrics.json, DIR/report.md and plots.",
+        help="run a recipe: writes run.mcap, metrics.json, report.md and report.html",
+        description="Run a recipe. Writes DIR/run.mcap, DIR/metrics.json, DIR/report.md, DIR/report.html "
+        "(one page with the plots inside: open it in a browser) and the plots.",
     )
-    parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
+    recipe_arg = parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
+    recipe_arg.completer = complete_recipes  # type: ignore[attr-defined]
     parser.add_argument("-o", "--out", type=Path, help="output folder (default: logs/<recipe name>/)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-        help="override a recipe field, e.g. --set loop_detector.params.threshold=0.3 (repeatable)",
-    )
+        help="override a recipe field, e.g. --set loop_detector.params.threshold=0.3 (repeatable); "
+        "--set STAGE.plugin=X starts X from its own defaults",
+    ).completer = complete_overrides  # type: ignore[attr-defined]
     parser.add_argument("-p", "--plugin-module", action="append", default=[], metavar="MODULE",
                         help="register an extra plugin module (importable name; repeatable)")
     parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames (a quick smoke run)")
@@ -45,10 +49,17 @@ def print_outcome(result: RunResult) -> None:
     """Where the outputs are and the headline metrics."""
     metrics = result.metrics
     print(f"log:     {result.log_path}")
-    print(f"report:  {result.report_path}")
+    print(f"report:  {result.html_path or result.report_path}")
     print(f"metrics: {result.metrics_path}")
+    if isinstance(metrics.get("ate_rmse_before_m"), float) and isinstance(metrics.get("ate_rmse_after_m"), float):
+        print(f"  ATE before -> after optimisation: {metrics['ate_rmse_before_m']:.3g} m -> "
+              f"{metrics['ate_rmse_after_m']:.3g} m")
+    if isinstance(metrics.get("drift_before_percent"), float) and isinstance(metrics.get("drift_after_percent"), float):
+        print(f"  drift at the last frame: {metrics['drift_before_m']:.3g} m -> {metrics['drift_after_m']:.3g} m "
+              f"({metrics['drift_before_percent']:.2g} % -> {metrics['drift_after_percent']:.2g} % of the distance)")
     shown = [
-        k for k in ("recall_at_100p", "auc_pr", "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second")
+        k for k in ("recall_at_100p", "auc_pr", "n_loop_constraints_added", "n_loop_constraints_added_false",
+                    "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second")
         if k in metrics
     ]
     for key in shown:

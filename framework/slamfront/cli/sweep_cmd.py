@@ -19,7 +19,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description=(
             "Run every run of a sweep file in parallel, skipping runs already finished in DIR "
             "(so the same command resumes an interrupted campaign). Writes DIR/results.csv, "
-            "DIR/results.json, DIR/report.md, plots, and DIR/runs/<run>/ with each run's log and metrics. "
+            "DIR/results.json, DIR/report.md and DIR/report.html (linking each run's report), plots, and DIR/runs/<run>/ with each run's log and metrics. "
             "Exit code: 0 all runs ok, 1 some failed (rerun to retry them), 130 interrupted, 2 bad sweep."
         ),
     )
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     )
     ran = len(result.table.rows) - result.n_skipped - result.count("pending")
     print(f"results: {result.results_csv}")
-    print(f"report:  {result.report_path}")
+    print(f"report:  {result.report_path.with_suffix('.html')}")
     print(f"runs:    {len(result.table.rows)} ({ran} ran now, {result.n_skipped} already finished): "
           f"{result.count('ok')} ok, {result.count('failed')} failed, {result.count('pending')} pending")
     for metric in result.table.missing_metrics():

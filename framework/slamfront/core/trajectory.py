@@ -221,6 +221,40 @@ def relative_pose_error(gt_poses: np.ndarray, est_poses: np.ndarray, pairs: np.n
     return RelativeError(pairs, translation, rotation, ErrorStatistics.of(translation), ErrorStatistics.of(rotation))
 
 
+@dataclass(frozen=True)
+class Drift:
+    """How far an estimate has drifted by its last pose.
+
+    :ivar translation_m: position error of the last pose relative to the first (the
+        translation of the RPE over the pair first -> last): the gap the estimate leaves
+        where the truth closes a loop.
+    :ivar rotation_deg: the same for the orientation.
+    :ivar path_length_m: distance travelled along the ground truth.
+    """
+
+    translation_m: float
+    rotation_deg: float
+    path_length_m: float
+
+    @property
+    def percent(self) -> float:
+        """``translation_m`` per 100 m travelled (NaN for a standing camera)."""
+        return 100.0 * self.translation_m / self.path_length_m if self.path_length_m > 0 else float("nan")
+
+
+def end_drift(gt_poses: np.ndarray, est_poses: np.ndarray) -> Drift:
+    """Drift of (N, 4, 4) estimated poses against their associated ground truth, N >= 2.
+
+    Independent of any alignment: only the motion from the first to the last pose counts.
+    """
+    gt, est = _check_pair(gt_poses, est_poses)
+    if len(gt) < 2:
+        raise CoreError(f"drift needs at least 2 poses, got {len(gt)}")
+    error = relative_pose_error(gt, est, np.array([[0, len(gt) - 1]]))
+    length = float(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum())
+    return Drift(float(error.translation[0]), float(error.rotation_deg[0]), length)
+
+
 def _inverse(poses: np.ndarray) -> np.ndarray:
     """Inverse of rigid (N, 4, 4) transforms (R^T rather than a general inverse)."""
     transposed = np.transpose(poses[:, :3, :3], (0, 2, 1))

@@ -1,12 +1,13 @@
 """Back-end evaluation: ATE and RPE (Sturm et al. 2012, :mod:`slamfront.core.trajectory`)
-of the trajectory before and after pose-graph optimisation, loop closures the back end
-added (and how many of them were true), and a plot."""
+of the trajectory before and after pose-graph optimisation, its drift (the position
+error of the last pose relative to the first, per distance travelled), loop closures the
+back end added (and how many of them were true), and a plot."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from slamfront.core.trajectory import evaluate_poses
+from slamfront.core.trajectory import end_drift, evaluate_poses
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
 from slamfront.posegraph import report
@@ -68,6 +69,9 @@ class BackendEvaluation(Evaluation):
                     metrics[f"ate_rmse_{suffix}_m"] = scores["ate_rmse_m"]
                     metrics[f"rpe_rmse_{suffix}_m"] = scores["rpe_rmse_m"]
                     metrics[f"rpe_rotation_rmse_{suffix}_deg"] = scores["rpe_rotation_rmse_deg"]
+                    drift = end_drift(truth_poses, self._trajectories[label].poses)
+                    metrics[f"drift_{suffix}_m"] = drift.translation_m
+                    metrics[f"drift_{suffix}_percent"] = drift.percent
         figures = []
         if context.options.plots:
             loops = None
@@ -82,6 +86,10 @@ class BackendEvaluation(Evaluation):
             path = report.before_after(titled, context.out_dir / "backend.png", ground_truth, loops,
                                        title="trajectory before and after pose-graph optimisation")
             figures.append(path.name)
-        shown = {k: context.statistics[k] for k in _SOLVER_KEYS if k in context.statistics}
+        # a key another stage also reports (a place map's n_vertices) is in metrics.json as backend.<key>
+        shown = {
+            k: context.statistics.get(f"backend.{k}", context.statistics[k])
+            for k in _SOLVER_KEYS if k in context.statistics
+        }
         markdown = report.metrics_table({**shown, **metrics}) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)

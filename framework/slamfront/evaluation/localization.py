@@ -68,7 +68,8 @@ class LocalizationEvaluation(Evaluation):
             metrics.update(self._region_metrics(scored))
             self._write_trajectories(context.out_dir, scored)
             if context.options.plots:
-                figures = self._plots(context.out_dir, scored)
+                lost = [e for e in estimates if e.keyframe < 0 and self._truth.get(e.frame, (0, "", 0, None))[3] is not None]
+                figures = self._plots(context.out_dir, scored, lost)
         else:
             notes.append("No localized frame has a ground-truth pose: no ATE/RPE.")
         reasons = Counter(re.sub(r"\d+", "N", e.reason) for e in estimates if e.keyframe < 0)
@@ -144,20 +145,22 @@ class LocalizationEvaluation(Evaluation):
         write_tum(out_dir / "estimated_tum.txt", Trajectory(stamps[order], est[order]))
         write_tum(out_dir / "groundtruth_tum.txt", Trajectory(stamps[order], gt[order]))
 
-    def _plots(self, out_dir: Path, scored: list[PoseEstimate]) -> list[str]:
+    def _plots(self, out_dir: Path, scored: list[PoseEstimate], lost: list[PoseEstimate]) -> list[str]:
+        """Top view and error along the route; spikes circled, frames not localized marked."""
         # along the route (traversal, then dataset order), so a shuffled run still draws a path
         route = sorted(scored, key=lambda e: (self._truth[e.frame][1], self._truth[e.frame][2]))
         gt = np.stack([self._truth[e.frame][3][:3, 3] for e in route])
         est = np.stack([e.pose[:3, 3] for e in route])
         keyframes = np.array([p[:3, 3] for p in self._keyframes.values() if p is not None]).reshape(-1, 3)
         trajectory = plots.localization_plot(
-            gt, est, keyframes, out_dir / "localization.png", "estimated vs ground-truth trajectory"
+            gt, est, keyframes, out_dir / "localization.png", "estimated vs ground-truth trajectory",
+            lost=np.array([self._truth[e.frame][3][:3, 3] for e in lost]).reshape(-1, 3),
         )
         errors = np.linalg.norm(est - gt, axis=1)
         error = plots.error_along(
             np.array([self._truth[e.frame][2] for e in route], dtype=np.float64), errors,
             out_dir / "localization_error.png", "position error per frame (unaligned)", "sequence index",
-            "error [m]",
+            "error [m]", missing=np.array([self._truth[e.frame][2] for e in lost], dtype=np.float64),
         )
         return [trajectory.name, error.name]
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from slamfront.core.loops import LoopGroundTruth, PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
-from slamfront.messages import FrameInfo, LoopResult, Message
+from slamfront.messages import FrameInfo, LoopConstraint, LoopResult, Message
 from slamfront.report import plots
 
 PR_CURVE_FILE = "pr_curve.csv"
@@ -59,12 +59,34 @@ class LoopClosureEvaluation(Evaluation):
     def __init__(self) -> None:
         self._results: dict[int, LoopResult] = {}
         self._sequence_index: dict[int, tuple[str, int]] = {}
+        self._verified: dict[int, int] = {}
+        """Query frame -> match of the loop closures a back end verified and added."""
+        self._has_backend = False
 
     def observe(self, kind: str, message: Message) -> None:
         if isinstance(message, LoopResult):
             self._results[message.frame] = message
         elif isinstance(message, FrameInfo):
             self._sequence_index[message.frame] = (message.traversal, message.sequence_index)
+        elif isinstance(message, LoopConstraint):
+            self._has_backend = True
+            if message.added:
+                self._verified[message.frame] = message.match
+
+    def _verified_point(self, truth: LoopGroundTruth) -> dict[str, Any]:
+        """Precision and recall of the closures the back end verified (geometrically) and
+        added, over the same queries as the detector's own operating point."""
+        queries = set(truth.queries.tolist())
+        known = [(f, m) for f, m in self._verified.items() if f in queries]
+        frames = np.array([f for f, _ in known], dtype=np.int64)
+        matches = np.array([m for _, m in known], dtype=np.int64)
+        tp = int(truth.is_correct(frames, matches).sum()) if len(known) else 0
+        positives = int(truth.has_true_match().sum())
+        return {
+            "n_verified": len(known),
+            "precision_verified": tp / len(known) if known else float("nan"),
+            "recall_verified": tp / max(positives, 1),
+        }
 
     def _score(self, truth: LoopGroundTruth, ks: list[int]) -> _Scores:
         frames = truth.queries
@@ -105,6 +127,8 @@ class LoopClosureEvaluation(Evaluation):
         if truth is None:
             return EvaluationReport(self.title, markdown="The source has no loop ground truth: nothing to score.\n")
         zeta = getattr(context.source.config, "tolerance", None)
+        if zeta is not None and context.source.loop_ground_truth_at(zeta) is None:
+            zeta = None  # the source's truth is not a band of frames (a stream's revisit radius)
         main = self._score(truth, context.options.recall_at_k)
         write_pr_curve(main.curve, context.out_dir / PR_CURVE_FILE)
         metrics = dict(main.metrics)
@@ -121,12 +145,14 @@ class LoopClosureEvaluation(Evaluation):
                 if key in _PER_TOLERANCE or (key.startswith("recall_at_") and key[len("recall_at_"):].isdigit()):
                     metrics[f"{key}_zeta{tolerance}"] = value
             curves[f"{label} (zeta={tolerance})"] = (other.curve.recall, other.curve.precision)
+        if self._has_backend:
+            metrics.update(self._verified_point(truth))
         space = self._search_space(context)
         metrics.update({k: v for k, v in space.items() if k not in context.statistics})
 
         figures = []
         if context.options.plots:
-            figures = self._plots(context, curves, main, truth)
+            figures = self._plots(context, curves, main, truth, metrics)
         table = "\n".join(
             ["| metric | value |", "| --- | --- |", *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items())]
         )
@@ -161,18 +187,23 @@ class LoopClosureEvaluation(Evaluation):
             f"{space['n_places_query']} | {space['n_searches']} |",
         ])
 
-    def _plots(self, context, curves, main: _Scores, truth: LoopGroundTruth) -> list[str]:  # type: ignore[no-untyped-def]
+    def _plots(self, context, curves, main: _Scores, truth: LoopGroundTruth, metrics) -> list[str]:  # type: ignore[no-untyped-def]
         curve = main.curve
+        points = {"accepted by the detector": (metrics["recall_at_operating_point"],
+                                               metrics["precision_at_operating_point"])}
+        if metrics.get("n_verified"):
+            points["verified by the back end"] = (metrics["recall_verified"], metrics["precision_verified"])
         pr_path = plots.pr_curves(
             curves,
             context.out_dir / "pr.png",
             title=f"precision-recall (recall@100%P = {curve.recall_at_100p:.3f}, AUC = {curve.auc:.3f})",
+            points=points,
         )
         frames = truth.queries
-        match = np.array([self._results[int(f)].match if int(f) in self._results else -1 for f in frames])
-        confidence = np.array(
-            [self._results[int(f)].confidence if int(f) in self._results else np.nan for f in frames], dtype=np.float64
-        )
+        results = [self._results.get(int(f)) for f in frames]
+        match = np.array([-1 if r is None else r.match for r in results])
+        confidence = np.array([np.nan if r is None else r.confidence for r in results], dtype=np.float64)
+        accepted = np.array([r is not None and r.accepted for r in results], dtype=bool)
 
         def seq(frame_indices: np.ndarray) -> np.ndarray:
             return np.array(
@@ -190,12 +221,13 @@ class LoopClosureEvaluation(Evaluation):
         match_path = plots.match_plot(
             query=seq(frames),
             match=seq(match),
-            confidence=np.nan_to_num(confidence, nan=0.0),
+            confidence=confidence,
             correct=main.correct,
             truth_lo=lo,
             truth_hi=hi,
             path=context.out_dir / "matches.png",
             title="chosen match vs query (green: ground truth band)",
+            accepted=accepted,
         )
         return [pr_path.name, match_path.name]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamfront.core.trajectory import delta_pairs, relative_pose_error
+from slamfront.core.trajectory import delta_pairs, end_drift, relative_pose_error
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.formats.ply import write_ply
 from slamfront.messages import CloudRegistration, FrameInfo, Message, PointCloud, RegisteredTrajectory
@@ -97,10 +97,9 @@ class RegistrationEvaluation(Evaluation):
         frames = [f for f in sorted(poses) if f in self._truth]
         if len(frames) < 2:
             return None
-        first, last = frames[0], frames[-1]
-        estimated = np.stack([poses[first], poses[last]])
-        truth = np.stack([self._truth[first], self._truth[last]])
-        return float(relative_pose_error(truth, estimated, np.array([[0, 1]])).translation[0])
+        estimated = np.stack([poses[frames[0]], poses[frames[-1]]])
+        truth = np.stack([self._truth[frames[0]], self._truth[frames[-1]]])
+        return end_drift(truth, estimated).translation_m
 
     def _step_seconds(self, pairs: list[CloudRegistration]) -> dict[str, float]:
         total: dict[str, float] = {}
@@ -196,13 +195,22 @@ class RegistrationEvaluation(Evaluation):
         truth_frames = [f for f in frames if int(f) in self._truth]
         if truth_frames:
             paths = {"ground truth": np.array([self._truth[int(f)][:3, 3] for f in truth_frames]), **paths}
-        figures.append(plots.trajectories_2d(paths, out / "registration_trajectory.png", "camera path").name)
+        # frames whose pose is a guess (rejected) or came from a fallback attempt, where they are
+        flagged = {
+            label: (np.array([final[p.frame][:3, 3] for p in pairs if p.outcome == outcome and p.frame in final])
+                    .reshape(-1, 3), marker, plots.OUTCOME_COLOURS[outcome])
+            for outcome, label, marker in (("fallback", "fallback", "^"), ("rejected", "rejected (pose guessed)", "X"))
+        }
+        figures.append(plots.trajectories_2d(
+            paths, out / "registration_trajectory.png", "camera path", flagged=flagged
+        ).name)
         if per_frame:
             keys = np.array(sorted(per_frame), dtype=np.int64)
             fitness = np.array([self._pairs[int(f)].fitness for f in keys], dtype=np.float64)
             figures.append(plots.pair_errors(
                 keys, np.array([per_frame[int(f)][0] for f in keys]), np.array([per_frame[int(f)][1] for f in keys]),
                 fitness, out / "registration_errors.png", "relative pose error per pair",
+                outcomes=[self._pairs[int(f)].outcome for f in keys],
             ).name)
         step_frames = np.array([p.frame for p in pairs], dtype=np.int64)
         figures.append(plots.stacked_seconds(step_frames, {

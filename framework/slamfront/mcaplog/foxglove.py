@@ -203,6 +203,8 @@ def frame_transforms(matrix: np.ndarray, stamp_ns: int, parent: str = MAP_FRAME,
 _LEVELS = {"debug": Log.DEBUG, "info": Log.INFO, "warning": Log.WARNING, "error": Log.ERROR, "fatal": Log.FATAL}
 
 
-def log_line(text: str, stamp_ns: int, level: str = "info", name: str = "slamfront") -> Log:
-    """A human-readable event for Foxglove's Log panel."""
-    return Log(timestamp=timestamp(stamp_ns), level=_LEVELS[level], message=text, name=name)
+def log_line(
+    text: str, stamp_ns: int, level: str = "info", name: str = "slamfront", file: str = "", line: int = 0
+) -> Log:
+    """A human-readable event for Foxglove's Log panel (``file``, ``line``: where it was logged)."""
+    return Log(timestamp=timestamp(stamp_ns), level=_LEVELS[level], message=text, name=name, file=file, line=line)

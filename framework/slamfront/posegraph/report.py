@@ -38,8 +38,8 @@ def before_after(
     """One panel per estimate (``{title: (N, d) positions}``), each over the ground truth.
 
     Estimates are aligned to the ground truth (as for the ATE) so they overlay it; loop
-    closures ``loops`` (L, 2) vertex positions are drawn as thin lines on the last panel.
-    The view is the plane the trajectory spreads in most.
+    closures ``loops`` (L, 2) vertex positions are drawn as lines on every panel, with
+    their count in the legend. The view is the plane the trajectory spreads in most.
     """
     from matplotlib.collections import LineCollection
 
@@ -48,12 +48,13 @@ def before_after(
     stacked = np.concatenate([*shown.values(), *(() if ground_truth is None else (ground_truth,))])
     a, b = _plane(stacked)
     fig, axes = plt.subplots(1, len(shown), figsize=(5.2 * len(shown), 5), dpi=110, squeeze=False)
-    for k, (ax, (name, points)) in enumerate(zip(axes[0], shown.items())):
+    for ax, (name, points) in zip(axes[0], shown.items()):
         if ground_truth is not None:
             ax.plot(ground_truth[:, a], ground_truth[:, b], color="0.6", linewidth=1.6, label="ground truth")
-        if loops is not None and k == len(shown) - 1 and len(loops):
+        if loops is not None and len(loops):  # long before optimisation (the gap), short after
             segments = points[loops][:, :, [a, b]]
-            ax.add_collection(LineCollection(segments, colors="tab:red", linewidths=0.3, alpha=0.35))
+            ax.add_collection(LineCollection(segments, colors="tab:red", linewidths=0.8, alpha=0.6,
+                                             label=f"loop closures ({len(loops)})"))
         ax.plot(points[:, a], points[:, b], color="tab:blue", linewidth=0.8, label="estimate")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_title(name, fontsize=9)

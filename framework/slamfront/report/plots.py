@@ -32,14 +32,29 @@ def _finish(fig: Any, ax: Any, path: Path, title: str, xlabel: str, ylabel: str,
     return path
 
 
-def pr_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "") -> Path:
-    """Precision-recall curves, one per label: ``{label: (recall, precision)}``."""
+OPERATING_POINT_MARKERS = ("o", "*", "D", "s", "^", "v")
+"""Marker of the 1st, 2nd, ... operating point drawn on a precision-recall plot."""
+
+
+def pr_curves(
+    curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path: Path, title: str = "",
+    points: Mapping[str, tuple[float, float]] | None = None,
+) -> Path:
+    """Precision-recall curves, one per label: ``{label: (recall, precision)}``.
+
+    :param points: operating points to mark, ``{label: (recall, precision)}``: where a
+        detector's own threshold puts it on its curve, or what survives verification.
+    """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
     for label, (recall, precision) in curves.items():
         ax.step(np.r_[0.0, recall], np.r_[1.0, precision], where="post", label=label)
+    for k, (label, (recall, precision)) in enumerate((points or {}).items()):
+        marker = OPERATING_POINT_MARKERS[k % len(OPERATING_POINT_MARKERS)]
+        ax.plot([recall], [precision], linestyle="none", marker=marker, markersize=9, markeredgecolor="black",
+                color=f"C{k + len(curves)}", zorder=5, label=f"{label}: P {precision:.2f}, R {recall:.2f}")
     ax.set_xlim(0, 1.0)
-    ax.set_ylim(0, 1.02)
+    ax.set_ylim(0, 1.05)
     return _finish(fig, ax, path, title or "precision-recall", "recall", "precision", "lower left")
 
 
@@ -68,12 +83,20 @@ def match_plot(
     title: str = "",
     xlabel: str = "query frame",
     ylabel: str = "matched reference frame",
+    accepted: np.ndarray | None = None,
 ) -> Path:
     """Chosen reference vs query over the ground-truth band, coloured by confidence.
 
+    Dots are correct matches, crosses wrong ones; filled markers were accepted by the
+    detector, hollow (or thin) ones rejected. The colour scale spans the confidences
+    the detector gave, so their differences stay visible whatever its range.
+
     :param query: (N,) x positions; ``match`` (N,) y positions (NaN for no answer).
     :param truth_lo: (N,) / ``truth_hi`` (N,) the band of correct matches (NaN: none).
+    :param accepted: (N,) bool, the detector's decision (None: all accepted).
     """
+    from matplotlib.colors import Normalize
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 5), dpi=110)
     order = np.argsort(query)
@@ -82,20 +105,36 @@ def match_plot(
         label="ground truth (within tolerance)", linewidth=0,
     )
     answered = np.isfinite(match)
-    good = answered & correct
-    bad = answered & ~correct
-    scatter = ax.scatter(
-        query[good], match[good], c=confidence[good], cmap="viridis", vmin=0, vmax=1, s=8, label="correct"
+    accepted = np.ones(len(query), dtype=bool) if accepted is None else np.asarray(accepted, dtype=bool)
+    shown = confidence[answered & np.isfinite(confidence)]
+    low, high = (float(shown.min()), float(shown.max())) if len(shown) else (0.0, 1.0)
+    if high - low < 1e-9:  # one confidence for all: a band around it
+        low, high = low - 0.05, high + 0.05
+    norm, cmap = Normalize(low, high), plt.get_cmap("viridis")
+    colour = cmap(norm(np.nan_to_num(confidence, nan=low)))
+    styles = (  # (mask, marker, size, filled, label)
+        (answered & correct & accepted, "o", 14, True, "correct, accepted"),
+        (answered & correct & ~accepted, "o", 14, False, "correct, rejected"),
+        (answered & ~correct & accepted, "X", 40, True, "wrong, accepted"),
+        (answered & ~correct & ~accepted, "x", 18, False, "wrong, rejected"),
     )
-    ax.scatter(
-        query[bad], match[bad], c=confidence[bad], cmap="viridis", vmin=0, vmax=1, s=22, marker="x",
-        label="wrong",
-    )
-    fig.colorbar(scatter, ax=ax, label="confidence")
+    for mask, marker, size, filled, label in styles:
+        if not mask.any():
+            continue
+        if filled:
+            ax.scatter(query[mask], match[mask], c=colour[mask], marker=marker, s=size,
+                       edgecolors="black" if marker == "X" else "none", linewidths=0.4, label=label)
+        elif marker == "o":
+            ax.scatter(query[mask], match[mask], facecolors="none", edgecolors=colour[mask], marker=marker, s=size,
+                       linewidths=0.8, label=label)
+        else:
+            ax.scatter(query[mask], match[mask], c=colour[mask], marker=marker, s=size, linewidths=0.6, alpha=0.6,
+                       label=label)
+    fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="confidence")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title or "matches")
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="upper left", fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -103,13 +142,23 @@ def match_plot(
 
 
 def trajectories_2d(
-    paths: Mapping[str, np.ndarray], path: Path, title: str = "", markers: Sequence[np.ndarray] = ()
+    paths: Mapping[str, np.ndarray], path: Path, title: str = "", markers: Sequence[np.ndarray] = (),
+    links: Mapping[str, tuple[np.ndarray, str]] | None = None,
+    flagged: Mapping[str, tuple[np.ndarray, str, str]] | None = None,
 ) -> Path:
     """Top view (x, y) of one or more trajectories: ``{label: (N, 3) positions}``.
 
     The plane is the one the trajectories spread in most (x-y, or x-z for camera
     conventions with y down).
+
+    :param markers: (2, 3) segments drawn as thin red lines, unlabelled.
+    :param links: labelled segments, ``{label: ((L, 2, 3) end points, colour)}``, e.g.
+        loop closures (correct ones in one colour, wrong ones in another).
+    :param flagged: labelled positions to mark, ``{label: ((K, 3) positions, marker, colour)}``,
+        e.g. frames whose registration was rejected.
     """
+    from matplotlib.collections import LineCollection
+
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 5), dpi=110)
     stacked = np.concatenate([p for p in paths.values() if len(p)] or [np.zeros((1, 3))])
@@ -120,6 +169,14 @@ def trajectories_2d(
             ax.plot(points[:, a], points[:, b], label=label, linewidth=1.2)
     for segment in markers:
         ax.plot(segment[:, a], segment[:, b], color="tab:red", linewidth=0.6, alpha=0.6)
+    for label, (segments, colour) in (links or {}).items():
+        if len(segments):
+            ax.add_collection(LineCollection(np.asarray(segments)[:, :, [a, b]], colors=colour, linewidths=0.8,
+                                             alpha=0.7, label=f"{label} ({len(segments)})"))
+    for label, (points, marker, colour) in (flagged or {}).items():
+        if len(points):
+            ax.scatter(points[:, a], points[:, b], marker=marker, color=colour, s=18, zorder=4, alpha=0.8,
+                       linewidths=0, label=f"{label} ({len(points)})")
     return _save_top_view(plt, fig, ax, (a, b), title or "trajectory", path)
 
 
@@ -137,29 +194,70 @@ def _save_top_view(plt: Any, fig: Any, ax: Any, axes: tuple[int, int], title: st
     return path
 
 
+OUTCOME_COLOURS = {"aligned": "tab:blue", "fallback": "tab:orange", "rejected": "tab:red", "failed": "black"}
+"""Colour of each registration outcome in the registration plots."""
+
+
 def pair_errors(
     frames: np.ndarray, translation_m: np.ndarray, rotation_deg: np.ndarray, fitness: np.ndarray, path: Path,
-    title: str = "",
+    title: str = "", outcomes: Sequence[str] | None = None,
 ) -> Path:
-    """Per-pair relative pose error (translation, rotation) and registration fitness by frame."""
+    """Per-pair relative pose error (translation, rotation) and registration fitness by frame.
+
+    Bars are coloured by ``outcomes`` (aligned, fallback, rejected: the frame's pose is a
+    guess), and error spikes (beyond the median + 5 robust deviations) are circled and
+    numbered with their frame.
+    """
     plt = _pyplot()
     fig, axes = plt.subplots(3, 1, figsize=(7, 6), dpi=110, sharex=True)
-    for ax, values, label, colour in (
-        (axes[0], translation_m * 100.0, "RPE translation [cm]", "tab:blue"),
-        (axes[1], rotation_deg, "RPE rotation [deg]", "tab:orange"),
-        (axes[2], fitness, "fitness", "tab:green"),
+    kinds = np.asarray(outcomes if outcomes is not None else ["aligned"] * len(frames))
+    for ax, values, label, spikes in (
+        (axes[0], translation_m * 100.0, "RPE translation [cm]", True),
+        (axes[1], rotation_deg, "RPE rotation [deg]", True),
+        (axes[2], fitness, "fitness", False),
     ):
         finite = np.isfinite(values)
-        ax.bar(frames[finite], values[finite], color=colour, width=0.8)
+        for outcome, colour in OUTCOME_COLOURS.items():
+            chosen = finite & (kinds == outcome)
+            if chosen.any():
+                ax.bar(frames[chosen], values[chosen], color=colour, width=0.8, label=outcome)
+        if spikes:
+            _mark_spikes(ax, frames, values)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3, axis="y")
     axes[2].set_ylim(0, 1.02)
     axes[2].set_xlabel("frame")
+    axes[0].legend(fontsize=7, ncols=4, loc="upper right")
     axes[0].set_title(title or "per-pair errors")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def spike_threshold(values: np.ndarray, deviations: float = 5.0) -> float:
+    """Where an error counts as a spike: the median plus ``deviations`` robust standard
+    deviations (1.4826 x the median absolute deviation) of the finite ``values``."""
+    finite = values[np.isfinite(values)]
+    if len(finite) < 3:
+        return np.inf
+    median = float(np.median(finite))
+    spread = 1.4826 * float(np.median(np.abs(finite - median)))
+    return median + deviations * max(spread, 1e-12)
+
+
+def _mark_spikes(ax: Any, x: np.ndarray, values: np.ndarray, most: int = 8) -> int:
+    """Circle the values above :func:`spike_threshold` and label the largest ``most`` with their x."""
+    with np.errstate(invalid="ignore"):
+        spikes = np.flatnonzero(values > spike_threshold(values))
+    if not len(spikes):
+        return 0
+    ax.scatter(x[spikes], values[spikes], s=60, facecolors="none", edgecolors="tab:red", linewidths=1.2, zorder=5,
+               label=f"spikes ({len(spikes)})")
+    for k in spikes[np.argsort(values[spikes])[::-1][:most]]:
+        ax.annotate(f"{int(x[k])}", (x[k], values[k]), textcoords="offset points", xytext=(3, 4), fontsize=7,
+                    color="tab:red")
+    return len(spikes)
 
 
 def stacked_seconds(frames: np.ndarray, steps: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
@@ -230,29 +328,48 @@ def _top_view_axes(points: np.ndarray) -> tuple[int, int]:
 
 
 def localization_plot(
-    truth: np.ndarray, estimate: np.ndarray, keyframes: np.ndarray, path: Path, title: str = ""
+    truth: np.ndarray, estimate: np.ndarray, keyframes: np.ndarray, path: Path, title: str = "",
+    lost: np.ndarray | None = None,
 ) -> Path:
     """Top view of ground-truth vs estimated positions, each pair joined, keyframes marked.
+
+    Estimates whose error is a spike (:func:`spike_threshold`) are circled in red.
 
     :param truth: (N, 3) true positions, in route order.
     :param estimate: (N, 3) estimated positions of the same frames.
     :param keyframes: (K, 3) keyframe positions.
+    :param lost: (M, 3) true positions of the frames that were not localized.
     """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 5.5), dpi=110)
-    a, b = _top_view_axes(np.concatenate([truth, estimate, keyframes.reshape(-1, 3)]))
+    lost = np.zeros((0, 3)) if lost is None else np.asarray(lost).reshape(-1, 3)
+    a, b = _top_view_axes(np.concatenate([truth, estimate, keyframes.reshape(-1, 3), lost]))
     for t, e in zip(truth, estimate):
         ax.plot([t[a], e[a]], [t[b], e[b]], color="tab:red", linewidth=0.5, alpha=0.5)
     ax.plot(truth[:, a], truth[:, b], color="tab:gray", linewidth=1.2, label="ground truth")
     ax.scatter(estimate[:, a], estimate[:, b], s=7, color="tab:blue", label="estimated", zorder=3)
+    errors = np.linalg.norm(estimate - truth, axis=1)
+    with np.errstate(invalid="ignore"):
+        spikes = errors > spike_threshold(errors)
+    if spikes.any():
+        ax.scatter(estimate[spikes, a], estimate[spikes, b], s=60, facecolors="none", edgecolors="tab:red",
+                   linewidths=1.2, zorder=5, label=f"error spikes ({int(spikes.sum())})")
     if len(keyframes):
         ax.scatter(keyframes[:, a], keyframes[:, b], s=40, marker="^", facecolors="none", edgecolors="tab:green",
                    label=f"keyframes ({len(keyframes)})", zorder=4)
+    if len(lost):
+        ax.scatter(lost[:, a], lost[:, b], s=25, marker="x", color="black", zorder=4,
+                   label=f"not localized ({len(lost)})")
     return _save_top_view(plt, fig, ax, (a, b), title or "localization", path)
 
 
-def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", xlabel: str = "", ylabel: str = "") -> Path:
-    """Per-frame errors (N,) against a position along the run (N,), with their RMSE as a line."""
+def error_along(
+    x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", xlabel: str = "", ylabel: str = "",
+    missing: np.ndarray | None = None,
+) -> Path:
+    """Per-frame errors (N,) against a position along the run (N,), with their RMSE as a
+    line, spikes (:func:`spike_threshold`) circled and labelled with their x, and the x of
+    frames without an estimate (``missing``) ticked along the bottom."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.5, 3.2), dpi=110)
     order = np.argsort(x, kind="stable")
@@ -260,6 +377,11 @@ def error_along(x: np.ndarray, errors: np.ndarray, path: Path, title: str = "", 
     if len(errors):
         rmse = float(np.sqrt(np.mean(np.square(errors))))
         ax.axhline(rmse, color="tab:red", linewidth=0.8, linestyle="--", label=f"RMSE {rmse:.3g}")
+        _mark_spikes(ax, x, errors)
+    if missing is not None and len(missing):
+        ax.plot(missing, np.zeros(len(missing)), linestyle="none", marker="|", markersize=10, color="black",
+                label=f"no estimate ({len(missing)})")
+    if len(errors) or (missing is not None and len(missing)):
         ax.legend(fontsize=8)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)

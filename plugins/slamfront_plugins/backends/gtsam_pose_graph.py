@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
-from slamfront import Backend, DataError, Frame, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront import Backend, Camera, DataError, Frame, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, make_graph
@@ -48,20 +48,27 @@ class GtsamPoseGraph(Backend):
     and an edge for each loop closure whose relative pose was verified.
 
     Odometry comes from the source's ground-truth poses with seeded noise, from a file
-    (trajectory, graph or run log) or from ``RelativePose`` messages of earlier stages
-    (registration, localizer). A loop closure the detector accepts gets its relative pose
-    from an earlier stage's ``RelativePose`` between the two frames or from this back
-    end's own PnP on the matched frame's depth; without one it is logged as skipped,
-    never added as an identity. ``solver`` picks batch Levenberg-Marquardt (at the end of
-    the run) or iSAM2 (updated every frame), robust kernels and GNC.
+    (trajectory, graph or run log), from ``RelativePose`` messages of earlier stages
+    (registration, localizer) or from the images themselves: frame-to-frame PnP on the
+    local features this back end keeps for loop verification (``odometry: pnp``; a
+    frame PnP cannot place repeats the previous motion, with little weight). A loop
+    closure the detector accepts gets its relative pose from an earlier stage's
+    ``RelativePose`` between the two frames or from this back end's own PnP on the
+    matched frame's depth; without one it is logged as skipped, never added as an
+    identity. Detectors that answer for earlier frames (sequence detectors) are
+    verified between the frame answered and its match. ``solver`` picks batch
+    Levenberg-Marquardt (at the end of the run) or iSAM2 (updated every frame), robust
+    kernels and GNC.
     """
 
     name = "gtsam_pose_graph"
     reads_pixels = True  # its own PnP verification extracts features and lifts them with depth
 
     class Config(PluginConfig):
-        odometry: Literal["ground_truth", "file", "stages"] = Field(
-            "ground_truth", description="ground truth + noise, a file, or RelativePose messages of earlier stages"
+        odometry: Literal["ground_truth", "file", "stages", "pnp"] = Field(
+            "ground_truth",
+            description="ground truth + noise, a file, RelativePose messages of earlier stages, or frame-to-frame "
+            "PnP on the images (this back end's features, lifted with the previous frame's depth)",
         )
         odometry_file: DataPath | None = Field(
             None, description="odometry: file -- TUM/x-y-theta/KITTI trajectory, g2o/iSAM graph, or a run.mcap"
@@ -74,6 +81,20 @@ class GtsamPoseGraph(Backend):
             None, description="odometry edges' standard deviations in the graph (default: odometry_noise)"
         )
         seed: int = Field(0, description="seed of the odometry noise")
+        odometry_max_disagreement: float = Field(
+            0.5, ge=0,
+            description="odometry: pnp -- PnP is also solved backwards (this frame's points into the previous "
+            "image); a motion whose two solutions differ by more than this fraction of its length is refused "
+            "(a wrong solution on repeated texture rarely agrees with its reverse)",
+        )
+        odometry_max_disagreement_deg: float = Field(
+            5.0, ge=0, description="odometry: pnp -- ... or whose rotations differ by more than this, degrees"
+        )
+        odometry_fallback_sigmas: Sigmas = Field(
+            default_factory=lambda: Sigmas(translation_m=1.0, rotation_deg=10.0),
+            description="odometry: pnp -- standard deviations of the previous motion repeated for a frame that PnP "
+            "could not place (weak: the graph stays connected without trusting the guess)",
+        )
         loop_sigmas: Sigmas = Field(
             default_factory=lambda: Sigmas(translation_m=0.1, rotation_deg=2.0),
             description="loop-closure edges' standard deviations (when their message gives no information)",
@@ -96,8 +117,8 @@ class GtsamPoseGraph(Backend):
 
     @classmethod
     def reads_pixels_with(cls, config: PluginConfig) -> bool:
-        # loop poses taken only from earlier stages' RelativePose: no PnP, no pixels
-        return getattr(config, "loop_pose", "auto") != "stages"
+        # loop poses taken only from earlier stages' RelativePose and odometry not by PnP: no pixels
+        return getattr(config, "loop_pose", "auto") != "stages" or getattr(config, "odometry", "") == "pnp"
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
@@ -112,7 +133,11 @@ class GtsamPoseGraph(Backend):
         """The descriptor stage's local-feature type, when it gives local features to reuse."""
         self._previous: Frame | None = None
         self._isam: Isam2Session | None = None
+        self._motion = np.eye(4)
+        """The last odometry motion (odometry: pnp repeats it when PnP fails)."""
         self._counts = {"n_loop_closures_added": 0, "n_loop_closures_skipped": 0}
+        if self.config.odometry == "pnp":
+            self._counts["n_odometry_fallbacks"] = 0
         self._result: dict[str, float | int | str | bool] = {}
 
     @cached_property
@@ -141,19 +166,21 @@ class GtsamPoseGraph(Backend):
         frame = inputs.frame
         relative = [m for kind in inputs.outputs for m in inputs.outputs[kind] if isinstance(m, RelativePose)]
         first_edge = len(self._edges)
+        self._remember_features(frame, inputs)
+        messages: list[Message] = []
         if self._previous is None:
             pose = frame.pose if frame.pose is not None and self.config.odometry == "ground_truth" else np.eye(4)
         else:
-            motion, information = self._odometry(frame, relative)
+            motion, information, odometry_message = self._odometry(frame, relative)
             self._edges.append((self._previous.index, frame.index, motion, information))
+            self._motion = motion
             pose = self._initial[-1] @ motion
+            messages += [odometry_message] if odometry_message is not None else []
         self._frames.append(frame.index)
         self._initial.append(np.asarray(pose, dtype=np.float64))
-        self._remember_features(frame, inputs)
-        messages: list[Message] = []
         for outcome in inputs.outputs.get("loop_detector", []):
             if isinstance(outcome, LoopResult) and outcome.accepted and outcome.match >= 0:
-                messages.append(self._close_loop(frame, outcome.match, relative))
+                messages.append(self._close_loop(frame, outcome.frame, outcome.match, relative))
         if self.config.stage_loops:
             messages += self._stage_loops(frame, relative)
         self._previous = frame
@@ -161,10 +188,58 @@ class GtsamPoseGraph(Backend):
             messages += self._isam2_update(frame.index, first_edge)
         return messages
 
-    def _odometry(self, frame: Frame, relative: list[RelativePose]) -> tuple[np.ndarray, np.ndarray]:
+    def _odometry(
+        self, frame: Frame, relative: list[RelativePose]
+    ) -> tuple[np.ndarray, np.ndarray, RelativePose | None]:
+        """The motion from the previous frame, its information, and (odometry: pnp) the
+        RelativePose message saying how it was measured."""
         assert self._previous is not None
         previous = self._previous
         sigmas = self.config.odometry_sigmas or self.config.odometry_noise
+        if self.config.odometry == "pnp":
+            return self._pnp_odometry(previous, frame, sigmas)
+        motion, information = self._given_odometry(previous, frame, relative, sigmas)
+        return motion, information, None
+
+    def _pnp_odometry(self, previous: Frame, frame: Frame, sigmas: Sigmas) -> tuple[np.ndarray, np.ndarray, RelativePose]:
+        reference, query = self._features.get(previous.index), self._features.get(frame.index)
+        if reference is None or query is None or frame.camera is None:
+            raise DataError(f"frame {frame.index}: odometry: pnp needs frames with a camera and depth")
+        assert self._matcher is not None
+        verdict = verify(reference, query, frame.camera, self._matcher, self.config.pnp)
+        problem = verdict.reason if verdict.transform is None else self._disagreement(reference, query, frame.camera,
+                                                                                      verdict.transform)
+        if problem is None:
+            information = sigmas.information()
+            return verdict.transform, information, RelativePose(
+                previous.index, frame.index, verdict.transform, information=information,
+                method="pnp odometry", inliers=verdict.inliers,
+            )
+        self._counts["n_odometry_fallbacks"] += 1
+        information = self.config.odometry_fallback_sigmas.information()
+        return self._motion, information, RelativePose(
+            previous.index, frame.index, self._motion, information=information,
+            method=f"previous motion ({problem})", inliers=verdict.inliers,
+        )
+
+    def _disagreement(
+        self, reference: FrameFeatures, query: FrameFeatures, camera: Camera, forward: np.ndarray
+    ) -> str | None:
+        """Why the forward PnP motion is not trusted (its reverse fails or disagrees), or None."""
+        assert self._matcher is not None
+        backward = verify(query, reference, camera, self._matcher, self.config.pnp)
+        if backward.transform is None:
+            return f"backward {backward.reason}"
+        gap = forward @ backward.transform  # the identity when both agree
+        metres, degrees = float(np.linalg.norm(gap[:3, 3])), geometry.rotation_angle_deg(gap)
+        length = float(np.linalg.norm(forward[:3, 3]))
+        if metres > self.config.odometry_max_disagreement * length or degrees > self.config.odometry_max_disagreement_deg:
+            return f"forward and backward PnP differ by {metres:.2f} m and {degrees:.1f} deg over {length:.2f} m"
+        return None
+
+    def _given_odometry(
+        self, previous: Frame, frame: Frame, relative: list[RelativePose], sigmas: Sigmas
+    ) -> tuple[np.ndarray, np.ndarray]:
         if self.config.odometry == "ground_truth":
             if previous.pose is None or frame.pose is None:
                 raise DataError(
@@ -189,8 +264,8 @@ class GtsamPoseGraph(Backend):
         )
 
     def _remember_features(self, frame: Frame, inputs: StageInputs) -> None:
-        """Keep the frame's features (and their 3-D points) for loops closed later."""
-        if self.config.loop_pose == "stages" or frame.camera is None:
+        """Keep the frame's features (and their 3-D points) for loops closed later and PnP odometry."""
+        if (self.config.loop_pose == "stages" and self.config.odometry != "pnp") or frame.camera is None:
             return
         stage = self._stage_descriptor
         features = next((m for m in inputs.outputs.get("descriptor", []) if isinstance(m, Features)), None)
@@ -205,11 +280,13 @@ class GtsamPoseGraph(Backend):
             self._matcher = Matcher(matching, metric, resolve_max_distance(matching, kind))
         self._features[frame.index] = FrameFeatures(keypoints, descriptors, lift(keypoints, frame.depth, frame.camera))
 
-    def _close_loop(self, frame: Frame, match: int, relative: list[RelativePose]) -> LoopConstraint:
+    def _close_loop(self, frame: Frame, query: int, match: int, relative: list[RelativePose]) -> LoopConstraint:
+        """Verify that frame ``query`` (``frame``, or an earlier one a sequence detector answers
+        for now) closes a loop with frame ``match``, and add the edge when it does."""
         transform, information, inliers, reason = None, self.config.loop_sigmas.information(), 0, ""
         if self.config.loop_pose in ("auto", "stages"):
             for message in relative:
-                if {message.frame_from, message.frame_to} == {match, frame.index}:
+                if {message.frame_from, message.frame_to} == {match, query}:
                     forward = message.frame_from == match
                     transform = message.transform if forward else geometry.invert(message.transform)
                     if message.information is not None and forward:
@@ -218,21 +295,19 @@ class GtsamPoseGraph(Backend):
             if transform is None:
                 reason = "no earlier stage gave a relative pose"
         if transform is None and self.config.loop_pose in ("auto", "pnp"):
-            reference, query = self._features.get(match), self._features.get(frame.index)
-            if reference is None or query is None or frame.camera is None:
+            older, newer = self._features.get(match), self._features.get(query)
+            if older is None or newer is None or frame.camera is None:
                 reason = f"frame {match} has no features and depth for PnP"
             else:
                 assert self._matcher is not None
-                verdict = verify(reference, query, frame.camera, self._matcher, self.config.pnp)
+                verdict = verify(older, newer, frame.camera, self._matcher, self.config.pnp)
                 transform, inliers, reason = verdict.transform, verdict.inliers, verdict.reason
         if transform is None:
             self._counts["n_loop_closures_skipped"] += 1
-            return LoopConstraint(frame=frame.index, match=match, added=False, reason=f"not verified: {reason}")
-        self._edges.append((match, frame.index, transform, information))
+            return LoopConstraint(frame=query, match=match, added=False, reason=f"not verified: {reason}")
+        self._edges.append((match, query, transform, information))
         self._counts["n_loop_closures_added"] += 1
-        return LoopConstraint(
-            frame=frame.index, match=match, added=True, reason=reason, transform=transform, inliers=inliers
-        )
+        return LoopConstraint(frame=query, match=match, added=True, reason=reason, transform=transform, inliers=inliers)
 
     def _stage_loops(self, frame: Frame, relative: list[RelativePose]) -> list[Message]:
         """RelativePose messages between this frame and a non-adjacent earlier one that no

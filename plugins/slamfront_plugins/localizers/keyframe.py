@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from typing import Literal
@@ -16,6 +17,8 @@ from slamfront.core.thumbnail import thumbnail
 from slamfront.matching import Matcher, MatchingConfig, resolve_max_distance
 from slamfront.messages import Features, KeyframeAdded, KeyframeMap, Message, PoseEstimate
 from slamfront_plugins.localizers.keyframe_map import TopologicalMap, View
+
+logger = logging.getLogger(__name__)
 
 
 class KeyframeLocalizer(Localizer):
@@ -239,6 +242,7 @@ class KeyframeLocalizer(Localizer):
 
     def _unlocalized(self, view: View, reason: str, nodes: np.ndarray | None = None) -> PoseEstimate:
         nodes = np.zeros(0, dtype=np.int64) if nodes is None else nodes
+        logger.info("frame %d not localized: %s", view.frame, reason)
         return PoseEstimate(
             frame=view.frame, keyframe=-1, candidates=self._frames_of(nodes), n_compared=len(nodes), reason=reason,
         )

@@ -88,6 +88,7 @@ class SequenceDecision(Message):
     """One level-3 call of the hierarchical detector: which map sequence answered which query sequence, and why."""
 
     schema_name: ClassVar[str] = "slamfront.SequenceDecision"
+    plain_fields: ClassVar[tuple[str, ...]] = ("candidate_costs",)
     iteration: int
     query_places: list[int]
     query_frames: np.ndarray

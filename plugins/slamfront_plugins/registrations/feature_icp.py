@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 
 import numpy as np
@@ -15,6 +16,8 @@ from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.model import ModelBuilder
 from slamfront_plugins.registrations.pairwise import align
 from slamfront_plugins.registrations.pose_graph import Link, refine
+
+logger = logging.getLogger(__name__)
 
 PRIOR_INFORMATION = (1e-2, 1e-2, 1e-2, 1e-1, 1e-1, 1e-1)
 """Information (x, y, z, rx, ry, rz) of a frame placed by the motion prior alone: sigma
@@ -57,6 +60,7 @@ class FeatureIcp(Registration):
         self._suggested: set[tuple[int, int]] = set()
         self._model = ModelBuilder(c.model_voxel_m, keep_parts=c.pose_graph)
         self._last_frame = -1
+        self._not_registered: list[int] = []
 
     # -- per frame -----------------------------------------------------------------------
 
@@ -64,6 +68,10 @@ class FeatureIcp(Registration):
         previous = self._previous
         messages = self._register(inputs)
         registration = next(m for m in messages if isinstance(m, CloudRegistration))
+        if registration.outcome in ("rejected", "failed"):
+            self._not_registered.append(registration.frame)
+            logger.info("frame %d %s: %s; placed by the motion prior", registration.frame,
+                        registration.outcome, registration.reason)
         return [*messages, *self._relative_poses(registration, previous)]
 
     def _relative_poses(self, registration: CloudRegistration, previous: int | None) -> list[RelativePose]:
@@ -170,6 +178,13 @@ class FeatureIcp(Registration):
     # -- end of run -------------------------------------------------------------------------
 
     def finish(self) -> Sequence[Message]:
+        if self._not_registered:
+            # once per run, so it reaches the terminal without flooding it
+            logger.warning(
+                "%d of %d frames could not be registered and were placed by the motion prior (first: frame %d); "
+                "see /registration/cloud_registration for why",
+                len(self._not_registered), len(self._poses), self._not_registered[0],
+            )
         timer = StepTimer()
         poses, refined, loops = self._poses, False, np.empty((0, 2), dtype=np.int64)
         if self.config.pose_graph and len(self._clouds) > 2:

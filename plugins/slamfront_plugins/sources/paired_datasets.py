@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import DataError
-from slamfront.data import DataPath, cache_root, data_root
+from slamfront.data import DataPath, data_root, download_root
 from slamfront.datasets import DatasetDownload
 from slamfront_plugins.sources.paired import PairedLayout, PairedTraversals, images_in
 
@@ -56,11 +56,11 @@ UOFA = DatasetDownload(
 
 
 def dataset_folder(configured: Path | None, name: str) -> Path:
-    """``configured``, else ``<data root>/<name>`` when present, else ``<cache>/<name>``."""
+    """``configured``, else ``<data root>/<name>`` when present, else ``<download folder>/<name>``."""
     if configured is not None:
         return Path(configured)
     shared = data_root() / name
-    return shared if shared.is_dir() else cache_root() / name
+    return shared if shared.is_dir() else download_root() / name
 
 
 def find_traversal(root: Path, traversal: str, dataset: str) -> Path:
@@ -81,7 +81,7 @@ class TraversalFolders(PairedTraversals):
     """The dataset's name: its folder under the data root and its download."""
 
     class Config(PairedTraversals.Config):
-        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download cache")
+        root: DataPath | None = Field(None, description="dataset folder; None: data root, then download folder")
         reference: str = Field("reference", description="folder of the reference traversal")
         query: str = Field("query", description="folder of the query traversal")
 
@@ -101,7 +101,7 @@ class Nordland(TraversalFolders):
     """Nordland railway (728 km, Norway), one season as reference and another as query.
 
     Reads ``<root>/<season>/*.png`` (default root: ``nordland`` under the data root, or
-    the download cache). The seasons are frame-aligned: the same file name is the same
+    the download folder). The seasons are frame-aligned: the same file name is the same
     place, so the ground truth pairs frames by name and refuses seasons whose names
     differ. Conventional use: reference summer, query winter.
     """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from functools import cached_property
 from typing import Literal
@@ -13,6 +14,8 @@ from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.frame import Traversal
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
+
+logger = logging.getLogger(__name__)
 
 
 class SyntheticWorld(Source):
@@ -121,6 +124,11 @@ class SyntheticWorld(Source):
         passes = len(self._passes())
         # arrival times keep the unshuffled clock (a minute between passes): strictly increasing
         arrival = [p * (n * dt + 60.0) + k * dt for p in range(passes) for k in range(n)]
+        c = self.config
+        logger.info(
+            "rendering %d passes of %d frames (%s mode) on a %g m route, world seed %d",
+            passes, n, c.mode, c.route_length_m, c.seed,
+        )
         for index, (pass_number, k) in enumerate(self.schedule()):
             yield self.frame_at(pass_number, k, index, arrival[index])
 

@@ -1,0 +1,1 @@
+"""The shipped recipes, packaged as ``slamfront.resources.recipes`` (see setup.py); list them with `slamfront recipes`."""
