@@ -117,6 +117,14 @@ class SequenceDecision(Message):
     """Frames: the speed of the chosen trajectory (map frames per query frame)."""
 
 
+DISTANCE_ACCEPT = 0.75
+"""Default operating point of eq. 3.14's confidence ``1 - v/2``."""
+UNIQUENESS_ACCEPT = 0.1
+"""Default operating point of the uniqueness confidence ``1 - best/second``: on the held-out
+data (Nordland frames 2900-3575, synthetic world seeds 100-102) every answer above 0.073 was
+correct; rounded up for a margin."""
+
+
 @dataclass
 class _Iteration:
     """A query sequence between level 2 and level 3 (faithful mode)."""
@@ -179,8 +187,9 @@ class HierarchicalSequence(LoopDetector):
             5, ge=1, description="temporal consistency: max |I(f_rho^{i-1}) - I(f_1^i)| in places (Table 4.1); "
             "frames mode: max distance in map frames between an answer and the previous one continued"
         )
-        accept_confidence: float = Field(
-            0.75, ge=0, le=1, description="operating point: matches at this confidence or more are accepted"
+        accept_confidence: float | None = Field(
+            None, ge=0, le=1, description="operating point: matches at this confidence or more are accepted; "
+            "unset: 0.75 for eq. 3.14's distance confidence, 0.1 for uniqueness (chosen on held-out data)"
         )
         query_joins_map: bool = Field(
             False, description="query places join the map after their iteration (Rodrigues 2019 §4.4 keeps the map "
@@ -255,6 +264,9 @@ class HierarchicalSequence(LoopDetector):
         self._waiting: _FrameAnswer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
         self._sequence_distances = 0
+        uniqueness = c.mode == "frames" and c.confidence == "uniqueness"
+        self._accept = c.accept_confidence if c.accept_confidence is not None else (
+            UNIQUENESS_ACCEPT if uniqueness else DISTANCE_ACCEPT)
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         if not isinstance(stages.get("place_map"), HierarchicalPlaceMap):
@@ -533,7 +545,7 @@ class HierarchicalSequence(LoopDetector):
             matched = pm.map_frames_at(np.asarray(ranked, dtype=np.int64))
             out.append(LoopResult(
                 frame=frame, match=int(matched[0]), confidence=confidence,
-                accepted=confidence >= self.config.accept_confidence, candidates=matched,
+                accepted=confidence >= self._accept, candidates=matched,
             ))
         return out
 
@@ -601,7 +613,7 @@ class HierarchicalSequence(LoopDetector):
             ranked = [int(matched[k]), *(int(a) for a in alternatives[k] if a != matched[k])]
             out.append(LoopResult(
                 frame=frame, match=int(matched[k]), confidence=confidence,
-                accepted=confidence >= self.config.accept_confidence,
+                accepted=confidence >= self._accept,
                 candidates=np.asarray(ranked[: self.config.candidates], dtype=np.int64),
             ))
         return out
