@@ -29,10 +29,12 @@ def small_synthetic_recipe(**source_params: Any) -> dict[str, Any]:
 
 
 def rewrite_log(
-    source: Path, target: Path, change: Callable[[str, int, bytes], bytes | None] = lambda _t, _i, data: data
+    source: Path, target: Path, change: Callable[[str, int, bytes], bytes | None] = lambda _t, _i, data: data,
+    attachment: Callable[[str, bytes], bytes] = lambda _name, data: data,
 ) -> None:
     """Copy a log record by record; ``change(topic, index in topic, data)`` may alter a
-    message (return new bytes) or drop it (return None). Metadata and attachments are kept."""
+    message (return new bytes) or drop it (return None); ``attachment(name, data)`` may
+    alter an attachment. Metadata are kept."""
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
     counts: dict[str, int] = {}
@@ -54,7 +56,8 @@ def rewrite_log(
             elif isinstance(record, Metadata):
                 log.add_metadata(record.name, dict(record.metadata))
             elif isinstance(record, Attachment):
-                log.add_attachment(record.name, record.media_type, bytes(record.data), record.log_time)
+                log.add_attachment(record.name, record.media_type, attachment(record.name, bytes(record.data)),
+                                   record.log_time)
 
 
 def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:

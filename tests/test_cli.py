@@ -113,3 +113,25 @@ def test_not_an_mcap_file(cli, tmp_path: Path) -> None:
 def test_missing_log(cli, tmp_path: Path) -> None:
     line = _one_line_error(*cli("inspect", tmp_path / "none.mcap")[::2])
     assert "none.mcap: no such log file" in line
+
+
+def test_building_the_command_line_imports_no_heavy_library() -> None:
+    # `slamfront --help` and every sub-command's parser stay cheap: the heavy modules are
+    # imported by the command that runs, not by the parser (nothing is timed here)
+    import subprocess
+    import sys
+
+    heavy = ("cv2", "numpy", "scipy", "gtsam", "numba", "matplotlib", "pydantic", "mcap", "open3d")
+    code = (
+        "import sys; from slamfront.cli import build_parser; build_parser(); "
+        f"print(','.join(m for m in {heavy!r} if m in sys.modules))"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert loaded == ""
+
+
+def test_eval_traj_lists_every_trajectory_format() -> None:
+    from slamfront.cli.eval_cmd import FORMATS
+    from slamfront.formats.poses import TRAJECTORY_READERS
+
+    assert FORMATS == tuple(sorted(TRAJECTORY_READERS))

@@ -54,3 +54,22 @@ def test_recall_at_k() -> None:
     truth = LoopGroundTruth.band(np.array([5, 6]), np.array([0, 1]), tolerance=0)
     got = recall_at_k(np.array([5, 6]), [np.array([3, 0]), np.array([2, 3])], truth, [1, 2])
     assert got == {1: 0.0, 2: 0.5}
+
+
+def test_batched_correctness_and_recall_at_k_match_a_per_query_check() -> None:
+    # is_correct and recall_at_k check all queries in one search; compare with a plain
+    # per-pair membership test on random truth (unknown frames, -1 answers, empty rows)
+    rng = np.random.default_rng(3)
+    queries = np.arange(100, 160)
+    rows = [np.unique(rng.integers(0, 90, rng.integers(0, 6))) for _ in queries]
+    truth = LoopGroundTruth.from_rows(queries, rows)
+    frames = rng.choice(np.r_[queries, 999, 1000], 500)
+    matches = rng.integers(-1, 90, 500)
+    members = {int(q): set(r.tolist()) for q, r in zip(queries, rows)}
+    expected = [m >= 0 and int(m) in members.get(int(f), set()) for f, m in zip(frames, matches)]
+    assert truth.is_correct(frames, matches).tolist() == expected
+    candidates = [rng.integers(0, 90, rng.integers(0, 12)) for _ in queries]
+    positives = [q for q, r in zip(queries, rows) if len(r)]
+    for k in (1, 3, 10):
+        hits = sum(any(int(c) in members[int(q)] for c in cands[:k]) for q, cands in zip(queries, candidates) if len(members[int(q)]))
+        assert recall_at_k(queries, candidates, truth, [k])[k] == pytest.approx(hits / len(positives))

@@ -178,3 +178,20 @@ def test_false_closures_follow_the_rate() -> None:
     assert same is graph and not none.any()
     with pytest.raises(CoreError, match=r"\[0, 1\)"):
         random_false_closures(graph, 1.0, rng)
+
+
+def test_connected_labels_number_components_as_scipy() -> None:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from slamfront.core.posegraph import connected_labels
+
+    rng = np.random.default_rng(0)
+    for trial in range(100):
+        n = int(rng.integers(1, 200))
+        a, b = rng.integers(0, n, n), rng.integers(0, n, n)
+        if trial % 3 == 0:  # a long chain, listed backwards: the slowest case for label propagation
+            a = np.arange(n - 1)[::-1]
+            b = a + 1
+        _, expected = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+        assert connected_labels(n, a, b).tolist() == expected.tolist()

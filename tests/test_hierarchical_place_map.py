@@ -81,7 +81,7 @@ def test_committing_query_places_extends_the_map() -> None:
     assert (1, 2, "route") not in place_map.edges  # another traversal: no route edge
 
 
-@pytest.mark.parametrize("search", ["vptree", "brute_force"])
+@pytest.mark.parametrize("search", ["vptree", "brute_force", "auto"])
 def test_nearest_places_equal_brute_force_over_representatives(search: str) -> None:
     vectors = route_descriptors(n_places=300, frames_per_place=2, dim=16, seed=3)
     place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9, leaf_size=4, search=search))
@@ -188,3 +188,25 @@ def test_a_given_nu_is_logged_as_given() -> None:
     assert all(len(o) == 1 for _, o in out[1:])
     with pytest.raises(ValueError, match="auto"):
         HierarchicalPlaceMap.Config(similarity_threshold=1.5)
+
+
+def test_auto_search_moves_to_a_vp_tree_only_where_it_computes_few_distances(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import slamfront.core.vptree as vptree
+    import slamfront_plugins.place_maps.hierarchical as hierarchical
+
+    monkeypatch.setattr(vptree, "VPTREE_MIN_PLACES", 600)
+    monkeypatch.setattr(hierarchical, "VPTREE_MIN_PLACES", 600)
+    rng = np.random.default_rng(4)
+    curve = np.linspace(0, 0.5, 1000)[:, None] * np.arange(1, 17)[None, :]  # a smooth 1-D route in 16-D
+    low = np.abs(np.sin(curve)).astype(np.float32) + 0.01
+    high = rng.random((1000, 16)).astype(np.float32)  # spread over all 16 dimensions
+    for vectors, expect_tree in ((low, True), (high, False)):
+        vectors = vectors / vectors.sum(1, keepdims=True)
+        config = HierarchicalPlaceMap.Config(similarity_threshold=1.0, leaf_size=4)  # a place per frame
+        place_map = HierarchicalPlaceMap(config)
+        _feed(place_map, vectors, ["reference"] * len(vectors))
+        assert (place_map._tree is not None) is expect_tree
+        for query in vectors[::97]:
+            got = place_map.nearest(query, 5, lo=3, hi=900)
+            want = brute_force_knn(query, vectors, 5, "l1", lo=3, hi=900)
+            assert got[0].tolist() == want[0].tolist() and np.array_equal(got[1], want[1])

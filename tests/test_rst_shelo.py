@@ -167,3 +167,38 @@ def test_nordland_retrieval_with_and_without_preprocessing(shared_data: Path) ->
     for config in (RstShelo.Config(), RstShelo.Config(preprocess=False)):
         at_1, at_20 = recall(config)
         assert at_1 >= 0.45 and at_20 >= 0.8
+
+
+def _add_at_histograms(theta, weight, block_x, block_y, bins, spatial_soft):  # type: ignore[no-untyped-def]
+    """The former np.add.at implementation of block_histograms, kept as the oracle."""
+    cells_y, cells_x = theta.shape
+    blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
+    position = theta / np.pi * bins - 0.5
+    low_bin = np.floor(position).astype(int)
+    bin_frac = position - low_bin
+    if spatial_soft:
+        row = (np.arange(cells_y) + 0.5) / block_y - 0.5
+        col = (np.arange(cells_x) + 0.5) / block_x - 0.5
+    else:
+        row = np.arange(cells_y) // block_y + 0.0
+        col = np.arange(cells_x) // block_x + 0.0
+    row_grid, col_grid = np.meshgrid(row, col, indexing="ij")
+    row0, col0 = np.floor(row_grid).astype(int), np.floor(col_grid).astype(int)
+    row_frac, col_frac = row_grid - row0, col_grid - col0
+    padded = np.zeros((blocks_y + 2, blocks_x + 2, bins))
+    for dr, wr in ((0, 1 - row_frac), (1, row_frac)):
+        for dc, wc in ((0, 1 - col_frac), (1, col_frac)):
+            for db, wb in ((0, 1 - bin_frac), (1, bin_frac)):
+                np.add.at(padded, (row0 + dr + 1, col0 + dc + 1, (low_bin + db) % bins), weight * wr * wc * wb)
+    return padded[1:-1, 1:-1]
+
+
+@pytest.mark.parametrize(("cells", "blocks", "bins"), [((16, 32), (4, 4), 9), ((12, 8), (3, 2), 6), ((5, 5), (5, 1), 4)])
+@pytest.mark.parametrize("soft", [True, False])
+def test_bincount_histograms_are_the_add_at_bits(cells: tuple[int, int], blocks: tuple[int, int], bins: int,
+                                                 soft: bool) -> None:
+    rng = np.random.default_rng(bins)
+    for _ in range(5):
+        theta, weight = rng.random(cells) * np.pi, rng.random(cells) * 40
+        expected = _add_at_histograms(theta, weight, blocks[1], blocks[0], bins, soft)
+        assert block_histograms(theta, weight, blocks[1], blocks[0], bins, soft).tobytes() == expected.tobytes()

@@ -16,6 +16,7 @@ from slamfront.core.seqslam import (
     matlab_round,
     patch_normalise,
     sequence_scores,
+    sequence_scores_block,
     trajectory_offsets,
 )
 from slamfront.errors import PluginError
@@ -52,7 +53,7 @@ def test_patch_normalisation_leaves_a_partial_border() -> None:
 def test_difference_is_mean_absolute_difference_and_chunk_independent() -> None:
     rng = np.random.default_rng(1)
     refs, queries = rng.random((30, 16), np.float32) * 255, rng.random((7, 16), np.float32) * 255
-    d = difference_columns(refs, queries, max_elements=3 * 30 * 16)
+    d = difference_columns(refs, queries, threads=3)
     assert d.shape == (30, 7)
     assert d[4, 5] == pytest.approx(np.abs(refs[4] - queries[5]).mean(), rel=1e-6)
     assert np.array_equal(d, difference_columns(refs, queries))
@@ -250,3 +251,76 @@ def test_synthetic_world_end_to_end(tmp_path: Path) -> None:
     result = run_pipeline(build_pipeline(parse_recipe(raw, "s.yaml"), "s.yaml"), "s.yaml", tmp_path, progress=False)
     assert result.metrics["n_queries"] == 150 and result.metrics["n_searches"] == 140
     assert result.metrics["recall_at_1"] > 0.6
+
+
+# --- the compiled search and distance engine against the former NumPy code --------------
+
+
+def _numpy_sequence_scores(columns: np.ndarray, offsets: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """The NumPy implementation the compiled kernels replaced, kept as the oracle."""
+    n_ref, width = columns.shape
+    reach = int(offsets.max())
+    padded = np.concatenate([columns, np.full((reach + 1, width), np.inf, dtype=columns.dtype)])
+    best = np.full(n_ref, np.inf, dtype=np.float64)
+    if rows is None:
+        for trajectory in offsets:
+            cost = np.zeros(n_ref, dtype=np.float64)
+            for k, offset in enumerate(trajectory):
+                cost += padded[offset : offset + n_ref, k]
+            np.minimum(best, cost, out=best)
+        return best
+    rows = np.asarray(rows, dtype=np.int64)
+    if len(rows) * 8 > n_ref:
+        every = _numpy_sequence_scores(columns, offsets)
+        best[rows] = every[rows]
+        return best
+    picked = padded[rows[:, None, None] + offsets[None, :, :], np.arange(width)[None, None, :]]
+    best[rows] = picked.sum(axis=2, dtype=np.float64).min(axis=1)
+    return best
+
+
+@pytest.mark.parametrize(("ds", "vmin", "vmax"), [(10, 0.8, 1.2), (40, 1.0, 1.5), (4, 0.5, 2.0)])
+def test_compiled_trajectory_search_gives_the_numpy_bits(ds: int, vmin: float, vmax: float) -> None:
+    rng = np.random.default_rng(ds)
+    n_ref, n_queries = 300, 9
+    offsets = trajectory_offsets(ds, vmin, vmax)
+    block = rng.standard_normal((n_ref, n_queries + ds)).astype(np.float32).astype(np.float64) + 3.1
+    rows = [None, np.sort(rng.choice(n_ref, 20, replace=False)), np.arange(0, n_ref, 2), np.array([0, n_ref - 1])]
+    rows = [rows[n % len(rows)] for n in range(n_queries)]
+    for threads in (1, 2):
+        got = sequence_scores_block(block, offsets, rows, threads=threads)
+        for n in range(n_queries):
+            expected = _numpy_sequence_scores(block[:, n : n + ds + 1], offsets, rows[n])
+            assert got[n].tobytes() == expected.tobytes()
+            assert sequence_scores(block[:, n : n + ds + 1], offsets, rows[n]).tobytes() == expected.tobytes()
+
+
+def test_difference_engine_gives_the_numpy_bits() -> None:
+    rng = np.random.default_rng(5)
+    for pixels in (7, 64, 288, 1024):
+        refs = rng.integers(0, 256, (50, pixels), dtype=np.uint8)
+        queries = rng.integers(0, 256, (6, pixels), dtype=np.uint8)
+        expected = np.abs(refs[:, None, :].astype(np.int64) - queries[None]).sum(2).astype(np.float32)
+        expected /= np.float32(pixels)
+        assert difference_columns(refs, queries).tobytes() == expected.tobytes()
+        floats_r, floats_q = refs.astype(np.float32) / 7, queries.astype(np.float32) / 7
+        numpy_sums = np.abs(floats_r[:, None, :] - floats_q[None, :, :]).sum(axis=2, dtype=np.float32)
+        assert difference_columns(floats_r, floats_q).tobytes() == (numpy_sums / np.float32(pixels)).tobytes()
+
+
+def test_thumbnail_resize_low_passes_before_shrinking_as_matlab_imresize() -> None:
+
+    from slamfront.core.thumbnail import imresize, resize_weights
+    from slamfront_plugins.descriptors.seqslam_thumbnail import SeqSlamThumbnail
+
+    stripes = np.tile(np.array([0, 255], dtype=np.uint8), (32, 32))  # 64 columns alternating black/white
+    shrunk = imresize(stripes, 32, 32)
+    assert shrunk.shape == (32, 32)
+    assert np.all(np.abs(shrunk[:, 2:-2].astype(int) - 128) <= 1)  # averaged to grey, not aliased (edges: mirrored)
+    weights = resize_weights(64, 32)
+    assert np.allclose(weights.sum(axis=1), 1.0) and np.allclose(weights[6][2:], weights[5][:-2])
+    assert np.unique(imresize(np.full((32, 64), 77, np.uint8), 32, 32)).tolist() == [77]
+    stack = np.stack([stripes, 255 - stripes])
+    assert np.array_equal(imresize(stack, 16, 20)[1], imresize(255 - stripes, 16, 20))  # batched = one by one
+    thumbnail = SeqSlamThumbnail(SeqSlamThumbnail.Config(width=32, height=32))
+    assert thumbnail.describe(np.dstack([stripes] * 3)).shape == (1024,)

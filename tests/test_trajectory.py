@@ -157,3 +157,20 @@ def test_agrees_with_evo_on_the_shared_trajectory_pair(fr1: tuple[Path, Path]) -
 def test_evaluate_poses_needs_three_for_alignment() -> None:
     with pytest.raises(CoreError, match="at least 3"):
         evaluate_poses(_poses(2), _poses(2))
+
+
+def test_quaternion_conversions_are_scipys_bits() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from slamfront.core import geometry
+
+    rng = np.random.default_rng(7)
+    quaternions = rng.standard_normal((5000, 4))
+    quaternions[:10] = [[0, 0, 0, 1], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, -1],
+                        [0.5, 0.5, 0.5, 0.5], [0, 0, 1e-9, 1], [1, 1, 0, 0], [0, 0, 1, 1], [1e-3, 0, 0, -1]]
+    matrices = geometry.quaternion_matrices(quaternions)
+    assert matrices.tobytes() == Rotation.from_quat(quaternions).as_matrix().tobytes()
+    perturbed = matrices + rng.normal(0, 1e-13, matrices.shape)  # orthonormal to rounding, as an optimiser leaves them
+    skewed = matrices + rng.normal(0, 1e-9, matrices.shape)  # SciPy re-orthogonalises these first
+    for m in (matrices, perturbed, skewed):
+        assert geometry.matrix_quaternions(m).tobytes() == Rotation.from_matrix(m).as_quat().tobytes()

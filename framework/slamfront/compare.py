@@ -25,6 +25,7 @@ from slamfront.campaign.backends import Backend
 from slamfront.campaign.campaign import CampaignResult
 from slamfront.errors import RecipeError
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
+from slamfront.outputs import make_folder
 from slamfront.recipe import find_recipe, parse_override, read_recipe_dict
 from slamfront.report import plots
 from slamfront.report.html import write_html
@@ -84,7 +85,7 @@ def compare(
     """Run every recipe (skipping those already finished in ``out_dir``) and write the report."""
     if not recipes:
         raise RecipeError("compare needs at least one recipe")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_folder(out_dir)
     sweep_path = out_dir / "compare.yaml"
     sweep_path.write_text(yaml.safe_dump(comparison_sweep(recipes, overrides, out_dir.name), sort_keys=False))
     campaign = run_campaign(

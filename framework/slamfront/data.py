@@ -20,12 +20,19 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import platformdirs
-from pydantic import AfterValidator, ValidationInfo
+
+from slamfront.errors import DataError
+
+if TYPE_CHECKING:
+    from pydantic import ValidationInfo
 
 DATA_ENV = "SLAMFRONT_DATA"
+
+MIRROR_ENV = "SLAMFRONT_DATA_MIRROR"
+"""A mirror base URL used instead of the pinned origins by ``datasets fetch`` (``--url`` overrides it)."""
 
 
 def source_checkout() -> Path | None:
@@ -72,5 +79,33 @@ def _resolve_data_path(value: Path, info: ValidationInfo) -> Path:
     return (Path(root) if root is not None else data_root()) / value
 
 
-DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
-"""A path in a plugin config: absolute as given, relative ones under the data root."""
+def __getattr__(name: str) -> Any:
+    # ``DataPath``, built on first use: pydantic is imported only by the configs that use
+    # it, so `slamfront datasets --help` (which reads this module's names) stays light.
+    if name == "DataPath":
+        from pydantic import AfterValidator
+
+        return Annotated[Path, AfterValidator(_resolve_data_path)]
+    raise AttributeError(f"module 'slamfront.data' has no attribute {name!r}")
+
+
+if TYPE_CHECKING:
+    from pydantic import AfterValidator
+
+    DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
+    """A path in a plugin config: absolute as given, relative ones under the data root."""
+
+
+def path_inside(folder: Path, relative: str, where: str) -> Path:
+    """``folder / relative``, refused when it leads outside ``folder`` (an absolute path,
+    ``..``, or a symbolic link pointing out): a path *read from a data file* (a list of
+    frames, say) names files of that dataset, never anything else on the disk.
+
+    :param where: the file and line that named the path, for the message.
+    :raises DataError: naming ``where`` and the path.
+    """
+    path = folder / relative
+    base = folder.resolve()
+    if not path.resolve().is_relative_to(base):
+        raise DataError(f"{where}: {relative!r} leads outside the dataset folder {folder}")
+    return path

@@ -19,12 +19,10 @@ import logging
 import sys
 from collections.abc import Iterable
 from types import TracebackType
+from typing import TYPE_CHECKING
 
-from tqdm import tqdm
-
-from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.topics import LOG_TOPIC
-from slamfront.mcaplog.writer import RunLogWriter
+if TYPE_CHECKING:  # the command line imports this module for every command: keep it light
+    from slamfront.mcaplog.writer import RunLogWriter
 
 _FOXGLOVE_LEVEL = {
     logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warning", logging.ERROR: "error",
@@ -87,6 +85,9 @@ class RunLogCapture:
 
     def flush(self, log: RunLogWriter, stamp_ns: int) -> int:
         """Write the records kept so far to ``/log`` at ``stamp_ns``; returns how many."""
+        from slamfront.mcaplog import foxglove
+        from slamfront.mcaplog.topics import LOG_TOPIC
+
         records = self._buffer.take()
         for record, text in records:
             line = foxglove.log_line(
@@ -108,6 +109,8 @@ class TerminalHandler(logging.Handler):
         try:
             origin = "" if record.name.split(".")[0] == "slamfront" else f"{record.name}: "
             text = f"slamfront: {record.levelname.lower()}: {origin}{self.format(record)}"
+            from tqdm import tqdm  # imported on the first warning: the command line starts faster
+
             tqdm.write(text, file=sys.stderr)
         except Exception:  # noqa: BLE001 - logging's contract: a handler never raises
             self.handleError(record)

@@ -29,14 +29,13 @@ from urllib.parse import quote, urlparse
 
 from tqdm import tqdm
 
+from slamfront.data import MIRROR_ENV  # noqa: F401  (re-exported: the manifest's mirror variable)
 from slamfront.datasets import download, sha256_of
 from slamfront.errors import DataError
 
 MANIFEST = Path(__file__).resolve().parent / "resources" / "data_manifest.json"
 """The shipped manifest."""
 
-MIRROR_ENV = "SLAMFRONT_DATA_MIRROR"
-"""A mirror base URL used instead of the pinned origins (``--url`` overrides it)."""
 
 PARALLEL = 8
 """Files downloaded at once: many small files from one host are latency-bound."""

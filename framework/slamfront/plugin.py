@@ -14,31 +14,19 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict
 
 from slamfront.errors import PluginError
 from slamfront.frame import Frame
+from slamfront.kinds import KINDS, STAGE_KINDS, Kind  # noqa: F401 (re-exported: plugin authors import them from here)
 from slamfront.messages import Features, Message
 
 if TYPE_CHECKING:
     from slamfront.core.loops import LoopGroundTruth
     from slamfront.datasets import DatasetDownload
 
-Kind = Literal[
-    "source", "descriptor", "place_map", "loop_detector", "localizer", "registration", "backend"
-]
-STAGE_KINDS: tuple[Kind, ...] = (
-    "descriptor",
-    "place_map",
-    "loop_detector",
-    "localizer",
-    "registration",
-    "backend",
-)
-"""Processing stages in the order a run calls them."""
-KINDS: tuple[Kind, ...] = ("source", *STAGE_KINDS)
 
 
 class PluginConfig(BaseModel):

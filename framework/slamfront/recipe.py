@@ -11,17 +11,19 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from slamfront.data import data_root
-from slamfront.errors import PluginError, RecipeError
+from slamfront.errors import PluginError, RecipeError, SlamfrontError
+from slamfront.limits import check_limit, current_limits, over_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 from slamfront.resources import shipped_dir
 from slamfront.suggest import did_you_mean, model_keys_at
+from slamfront.text import shorten
 
 LogLevel = Literal["debug", "info", "warning", "error"]
 
@@ -54,6 +56,12 @@ class LogOptions(_Strict):
     scene_every: int = Field(20, ge=1, description="update /scene/map every this many frames")
     compression: Literal["zstd", "lz4", "none"] = Field("zstd", description="MCAP chunk compression")
     chunk_size: int = Field(1 << 20, ge=1024, description="MCAP chunk size in bytes")
+
+    @field_validator("chunk_size")
+    @classmethod
+    def _readable_chunks(cls, value: int) -> int:
+        check_limit("chunk_bytes", value, "the chunk size (readers refuse larger chunks)")
+        return value
     sync_seconds: float | None = Field(
         5.0, gt=0, description="close the chunk and fsync this often, bounding what a power cut loses (null: never)"
     )
@@ -66,8 +74,8 @@ class EvalOptions(_Strict):
     """How the run is evaluated and reported."""
 
     plots: bool = Field(True, description="write PNG plots next to report.md")
-    recall_at_k: list[int] = Field(default_factory=lambda: [1, 5, 10])
-    tolerances: list[int] = Field(
+    recall_at_k: list[Annotated[int, Field(ge=1)]] = Field(default_factory=lambda: [1, 5, 10])
+    tolerances: list[Annotated[int, Field(ge=0)]] = Field(
         default_factory=list,
         description="also score loops at these tolerances (zeta), for sources that support it; "
         "metrics get the suffix _zeta<t>",
@@ -132,18 +140,88 @@ def find_recipe(name_or_path: str | Path) -> Path:
     return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
 
 
+def _expanded_nodes(data: Any, limit: int) -> int | None:
+    """Nodes of ``data`` counting every alias as a copy of what it names, stopping past
+    ``limit``; None when an alias refers to a node that contains it (a cycle).
+
+    PyYAML shares one object between an anchor and its aliases, so a few hundred bytes
+    parse into a small graph that is a huge tree: anything that walks it as a tree
+    (validation, copies, error messages) would expand it.
+    """
+    sizes: dict[int, int] = {}
+    ancestors: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(data, False)]
+    while stack:
+        node, leaving = stack.pop()
+        children = list(node.values()) if isinstance(node, dict) else node if isinstance(node, list) else None
+        if children is None:
+            continue
+        key = id(node)
+        if leaving:
+            ancestors.discard(key)
+            sizes[key] = 1 + sum(sizes.get(id(child), 1) for child in children)
+            if sizes[key] > limit:
+                return sizes[key]
+            continue
+        if key in sizes:
+            continue
+        if key in ancestors:
+            return None
+        ancestors.add(key)
+        stack.append((node, True))
+        stack.extend((child, False) for child in children)
+    return sizes.get(id(data), 1)
+
+
+def _bounded_yaml(text: str) -> Any:
+    """``yaml.safe_load`` with what a hostile document can cost bounded.
+
+    :raises ValueError: the reason, short (with ``:LINE`` first when known).
+    """
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"{line}: not valid YAML: {shorten(str(getattr(exc, 'problem', None) or exc))}") from None
+    except RecursionError:
+        raise ValueError(": not valid YAML: nested too deeply") from None
+    limit = current_limits().yaml_nodes
+    nodes = _expanded_nodes(data, limit)
+    if nodes is None:
+        raise ValueError(": an alias refers to a node that contains it (a recursive document)")
+    if nodes > limit:
+        raise ValueError(f": {over_limit('yaml_nodes', nodes, 'the number of nodes with aliases expanded')}")
+    return data
+
+
+def load_yaml(text: str, where: str, error: type[SlamfrontError] = RecipeError) -> Any:
+    """Parse YAML with aliases bounded to ``yaml_nodes`` expanded nodes
+    (:mod:`slamfront.limits`), recursive aliases and absurd nesting refused, and short
+    error messages.
+
+    :param where: the file (or other origin) named in errors.
+    :raises SlamfrontError: of type ``error``, one line naming ``where``.
+    """
+    try:
+        return _bounded_yaml(text)
+    except ValueError as exc:
+        raise error(f"{where}{exc}") from None
+
+
 def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
     """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
     try:
-        text = path.read_text()
+        size = path.stat().st_size
+        problem = over_limit("text_bytes", size, "its size in bytes")
+        if problem:
+            raise RecipeError(f"{path}: {problem}")
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark is not None else ""
-        raise RecipeError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from exc
+    except UnicodeDecodeError as exc:
+        raise RecipeError(f"{path}: a {what} must be UTF-8 text (byte {exc.start} is not)") from None
+    raw = load_yaml(text, str(path))
     if not isinstance(raw, dict):
         raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
     raw.setdefault("name", path.stem)
@@ -162,9 +240,10 @@ def parse_override(item: str, origin: str) -> tuple[str, Any]:
     if not sep or not key:
         raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
     try:
-        return key, yaml.safe_load(value_text) if value_text.strip() else ""
-    except yaml.YAMLError as exc:
-        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {exc}") from exc
+        return key, _bounded_yaml(value_text) if value_text.strip() else ""
+    except ValueError as exc:
+        reason = str(exc).split("YAML: ", 1)[-1].lstrip(": ")
+        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {reason}") from None
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
@@ -230,7 +309,7 @@ def _format_validation(exc: ValidationError, prefix: str, model: type[BaseModel]
             what = f"parameter of {owner}" if owner else "key"
             return f"{loc}: unknown {what}; {did_you_mean(str(key), known, 'keys')}{more}"
     got = err.get("input")
-    shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
+    shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {shorten(repr(got), 80)})"
     return f"{loc}: {err['msg']}{shown}{more}"
 
 

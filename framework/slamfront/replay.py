@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
@@ -33,7 +32,15 @@ from slamfront.errors import LogError, PluginError, RecipeError
 from slamfront.feeds import FrameFeed, FrameStep
 from slamfront.frame import Camera, Frame
 from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.reader import LoggedMessage, LogSummary, read_attachment, read_messages, summarize
+from slamfront.mcaplog.reader import (
+    RECIPE_ATTACHMENT,
+    LoggedMessage,
+    LogSummary,
+    embedded_recipe_text,
+    read_messages,
+    read_messages_and_gaps,
+    summarize,
+)
 from slamfront.mcaplog.topics import (
     CALIBRATION_TOPIC,
     DEPTH_TOPIC,
@@ -47,22 +54,27 @@ from slamfront.mcaplog.topics import (
 )
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import FrameInfo, LoopTruth, RunEvent, StageStatistics, message_class
+from slamfront.outputs import same_file
 from slamfront.plugin import STAGE_KINDS, PluginConfig, Source, Stage
-from slamfront.recipe import Recipe, StageSpec, build_pipeline, parse_recipe
+from slamfront.recipe import Recipe, StageSpec, build_pipeline, load_yaml, parse_recipe
 from slamfront.registry import PluginRegistry
 from slamfront.runtime import RunResult, execute_run
+from slamfront.trust import refuse_untrusted
 
-RECIPE_ATTACHMENT = "recipe.yaml"
+
+def log_recipe_data(log: Path) -> dict[str, Any]:
+    """The recipe a log embeds (attachment ``recipe.yaml``) as plain data, parsed with
+    YAML's costs bounded (:func:`slamfront.recipe.load_yaml`)."""
+    origin = f"{log}:{RECIPE_ATTACHMENT}"
+    raw = load_yaml(embedded_recipe_text(log), origin, LogError)
+    if not isinstance(raw, dict):
+        raise LogError(f"{origin}: a recipe must be a YAML mapping, got {type(raw).__name__}")
+    return raw
 
 
 def log_recipe(log: Path) -> Recipe:
     """The resolved recipe a log embeds (attachment ``recipe.yaml``)."""
-    text = read_attachment(log, RECIPE_ATTACHMENT)
-    try:
-        raw = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise LogError(f"{log}: the embedded {RECIPE_ATTACHMENT} is not valid YAML: {exc}") from exc
-    return parse_recipe(raw, f"{log}:{RECIPE_ATTACHMENT}")
+    return parse_recipe(log_recipe_data(log), f"{log}:{RECIPE_ATTACHMENT}")
 
 
 @dataclass
@@ -83,6 +95,8 @@ class ReplayPlan:
     """Some re-run stage reads pixels: images (and depth) are decoded from the log."""
     summary: LogSummary
     registry: PluginRegistry
+    damage: str | None = None
+    """What the log lost, when a damaged log is replayed as far as it can be read."""
 
 
 def _pixels_problem(original: Recipe, first: FrameInfo | None) -> str | None:
@@ -131,16 +145,30 @@ def plan_replay(
     recipe_origin: str = "--recipe",
     from_kind: str | None = None,
     registry: PluginRegistry | None = None,
+    trust_log: bool = False,
+    salvage: bool = False,
 ) -> ReplayPlan:
     """Decide what a replay of ``log`` reads and what it re-runs.
 
     :param recipe: the recipe to replay with (default: the log's own).
     :param from_kind: the first stage to run again (default: the earliest the log can feed).
-    :raises RecipeError: the recipe changes a stage before ``from_kind`` or the source.
-    :raises LogError: the log lacks what the re-run stages need.
+    :param trust_log: let the log's recipe import its ``plugin_modules`` and name paths
+        outside the data root (:mod:`slamfront.trust`); refused otherwise.
+    :param salvage: replay a damaged log as far as it can be read (else refused).
+    :raises RecipeError: the recipe changes a stage before ``from_kind`` or the source,
+        or the log's recipe needs trust it was not given.
+    :raises LogError: the log is damaged, or lacks what the re-run stages need.
     """
     summary = summarize(log)
-    original = log_recipe(log)
+    if not summary.complete and not salvage:
+        raise LogError(
+            f"{log}: the log is damaged, so a replay of it would silently lack what was lost ({summary.problem}); "
+            "pass --salvage to replay what can be read, or `slamfront recover` it first"
+        )
+    raw = log_recipe_data(log)
+    if not trust_log:
+        refuse_untrusted(raw, f"{log}:{RECIPE_ATTACHMENT}")
+    original = parse_recipe(raw, f"{log}:{RECIPE_ATTACHMENT}")
     wanted = recipe or original
     registry = registry or PluginRegistry(modules=[*original.plugin_modules, *wanted.plugin_modules])
     if wanted.source.model_dump() != original.source.model_dump():
@@ -201,6 +229,7 @@ def plan_replay(
     return ReplayPlan(
         log=log, original=original, recipe=effective, from_kind=from_kind, recorded=recorded, rerun=rerun,
         needs_pixels=bool(pixel_stages), summary=summary, registry=registry,
+        damage=None if summary.complete else summary.problem,
     )
 
 
@@ -317,6 +346,7 @@ class ReplayFeed(FrameFeed):
         self._statistics: dict[str, dict[str, Any]] = {}
         self._finished = False
         self._dropped_last = False
+        self._lost_frames = 0
         self._check_recorded_types()
 
     def _check_recorded_types(self) -> None:
@@ -333,7 +363,11 @@ class ReplayFeed(FrameFeed):
 
     def steps(self) -> Iterator[FrameStep]:
         pending: _PendingFrame | None = None
-        for logged in read_messages(self.plan.log, strict=False):
+        for logged in read_messages_and_gaps(self.plan.log, strict=False):
+            if logged is None:  # damage: the frame being gathered may lack messages, leave it out
+                self._lost_frames += pending is not None
+                pending = None
+                continue
             topic = logged.topic
             if topic == LOOP_TRUTH_TOPIC:
                 self._source.take_truth(logged)
@@ -418,11 +452,19 @@ class ReplayFeed(FrameFeed):
     def loop_ground_truth(self) -> LoopGroundTruth | None:
         return self._source.loop_ground_truth()
 
+    @property
+    def lost_frames(self) -> int:
+        """Frames left out because damage was met while gathering their messages."""
+        return self._lost_frames
+
     def ending_note(self) -> str:
         read = ", ".join(self.plan.recorded) or "none"
         note = f"; replay of {self.plan.log} from {self.plan.from_kind} (read from the log: {read})"
         if self._dropped_last:
             note += "; the log ends without the run's finish, so its last frame was left out"
+        if self.plan.damage:
+            lost = f", {self._lost_frames} frames next to the damage were left out" if self._lost_frames else ""
+            note += f"; the log is damaged and was replayed as far as it could be read{lost} (lost: {self.plan.damage})"
         return note + self._source.truth_note
 
 
@@ -433,17 +475,22 @@ def replay_log(
     recipe_origin: str | None = None,
     from_kind: str | None = None,
     progress: bool | None = None,
+    trust_log: bool = False,
+    salvage: bool = False,
 ) -> RunResult:
     """Replay ``log`` into ``out_dir`` (``run.mcap``, ``metrics.json``, ``report.md``).
 
     :param recipe: replay with this recipe instead of the log's own.
     :param from_kind: the first stage to run again (see :func:`plan_replay`).
+    :param trust_log: see :func:`plan_replay`.
+    :param salvage: replay a damaged log as far as it can be read; the result's notes
+        and the new log's last ``/log`` line say what was lost.
     """
     log = Path(log)
-    if (out_dir / "run.mcap").resolve() == log.resolve():
+    if same_file(out_dir / "run.mcap", log):  # by identity: hard links and bind mounts too
         raise LogError(f"{log}: a replay cannot overwrite the log it reads; choose another -o folder")
     origin = recipe_origin or f"{log}:{RECIPE_ATTACHMENT}"
-    plan = plan_replay(log, recipe, origin, from_kind)
+    plan = plan_replay(log, recipe, origin, from_kind, trust_log=trust_log, salvage=salvage)
     source = RecordedSource(plan)
     pipeline = build_pipeline(plan.recipe, origin, registry=plan.registry, source=source)
     feed = ReplayFeed(plan, source)
@@ -453,6 +500,11 @@ def replay_log(
             "from": plan.from_kind,
             "recorded_stages": ",".join(plan.recorded),
             "rerun_stages": ",".join(plan.rerun),
+            **({"damage": plan.damage} if plan.damage else {}),
         }
     }
-    return execute_run(pipeline, feed, origin, out_dir, progress, metadata=metadata)
+    result = execute_run(pipeline, feed, origin, out_dir, progress, metadata=metadata, input_files=[log])
+    if plan.damage:
+        lost = f" ({feed.lost_frames} frames next to the damage left out)" if feed.lost_frames else ""
+        result.notes.append(f"{log} is damaged; replayed what could be read{lost}; lost: {plan.damage}")
+    return result

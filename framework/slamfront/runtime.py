@@ -14,12 +14,12 @@ written, :mod:`slamfront.interrupts`). Its last ``/log`` line says how the run e
 
 from __future__ import annotations
 
-import json
+import contextlib
+import errno
 import logging
-import os
 import platform
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -53,10 +53,12 @@ from slamfront.mcaplog.topics import (
 )
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
+from slamfront.outputs import claim_run_folder
 from slamfront.plugin import Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
+from slamfront.report.metrics_file import write_json_atomically
 from slamfront.resources import layout_for
 
 __all__ = [
@@ -77,6 +79,12 @@ class RunResult:
     metrics: dict[str, Any]
     html_path: Path | None = None
     """``report.html``: the report as one self-contained page (plots inlined)."""
+    notes: list[str] = field(default_factory=list)
+    """What the user should know about how the run went (e.g. a replay's lost data)."""
+    phase_seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time of the run's phases after setup: ``frame_loop`` (frames and the stages'
+    ``finish``, logging included), ``evaluation`` (metrics and their plots), ``log_close``
+    and ``report`` (metrics.json, report.md, report.html)."""
 
 
 @dataclass
@@ -221,14 +229,20 @@ def execute_run(
     progress: bool | None = None,
     max_frames: int | None = None,
     metadata: dict[str, dict[str, str]] | None = None,
+    input_files: Sequence[Path] = (),
 ) -> RunResult:
     """Drive ``pipeline``'s stages with the frames of ``feed``; stages of the kinds in
     ``feed.recorded_kinds`` are not called, their logged messages are used instead.
 
+    The log's last ``/log`` line says how the run ended, whatever phase it ended in
+    (streaming, the stages' finish, evaluation and its plots), and it is written last:
+    a run it calls completed has produced everything but the log's own statistics.
+
     :param metadata: extra MCAP metadata records (name -> key/values).
+    :param input_files: files the run reads (a replayed log): never overwritten or removed.
     """
     recipe = pipeline.recipe
-    out_dir.mkdir(parents=True, exist_ok=True)
+    folder = claim_run_folder(out_dir, input_files)
     log_path = out_dir / "run.mcap"
     stages: list[Stage] = pipeline.stages
     recorded = feed.recorded_kinds
@@ -236,6 +250,7 @@ def execute_run(
     scene = SceneLogger(recipe.log.scene_every) if recipe.log.scene else None
     observers = _Observers([*evaluations, *([scene] if scene else [])])
     timer, clock = StageTimer(), LogClock()
+    phases: dict[str, float] = {}
     statistics: dict[str, dict[str, Any]] = {}
     n_frames, last_stamp = 0, 0
     ending = ("error", "run failed before the first frame")
@@ -246,133 +261,141 @@ def execute_run(
     options = recipe.log
     capture = RunLogCapture(_logger_packages(pipeline), options.level)
     try:
-        with (
-            capture,
-            Interrupts() as interrupts,
-            RunLogWriter(
-                log_path, options.compression, options.chunk_size, library, options.sync_seconds,
-                interrupts.critical,
-            ) as log,
-        ):
-            log_opened = True
-            with clock:
-                _record_provenance(log, pipeline, origin, metadata or {})
-            _warn_if_no_query_is_reached(pipeline, feed, max_frames)
-            total = feed.total()
-            bar = tqdm(
-                total=total if max_frames is None or total is None else min(total, max_frames),
-                desc=recipe.name,
-                unit="frame",
-                disable=None if progress is None else not progress,  # None: only on a terminal
-            )
-            try:
-                steps = iter(feed.steps())
-                while max_frames is None or n_frames < max_frames:
-                    where = f"in the {pipeline.source.name} source reading frame {n_frames}"
-                    tick = time.perf_counter()
-                    step = next(steps, None)
-                    if step is None:
-                        break
-                    timer.add("source", time.perf_counter() - tick)
-                    frame = step.frame
-                    last_stamp = frame.timestamp_ns
+        try:
+            with (
+                capture,
+                Interrupts() as interrupts,
+                RunLogWriter(
+                    log_path, options.compression, options.chunk_size, library, options.sync_seconds,
+                    interrupts.critical,
+                ) as log,
+            ):
+                log_opened = True
+                with clock:
+                    _record_provenance(log, pipeline, origin, metadata or {})
+                    log.sync()  # recipe and versions are on disk before the first frame: even a SIGKILL keeps them
+                bar: tqdm | None = None
+                try:
+                    _warn_if_no_query_is_reached(pipeline, feed, max_frames)
+                    total = feed.total()
+                    bar = tqdm(
+                        total=total if max_frames is None or total is None else min(total, max_frames),
+                        desc=recipe.name,
+                        unit="frame",
+                        disable=None if progress is None else not progress,  # None: only on a terminal
+                    )
+                    steps = iter(feed.steps())
+                    while max_frames is None or n_frames < max_frames:
+                        where = f"in the {pipeline.source.name} source reading frame {n_frames}"
+                        tick = time.perf_counter()
+                        step = next(steps, None)
+                        if step is None:
+                            break
+                        timer.add("source", time.perf_counter() - tick)
+                        frame = step.frame
+                        last_stamp = frame.timestamp_ns
+                        with clock:
+                            capture.flush(log, last_stamp)
+                            info = feed.log_frame(log, step)
+                        observers.observe("frames", info)
+                        inputs = StageInputs(frame=frame, outputs={}, stages={})
+                        for stage in stages:
+                            if stage.kind in recorded:
+                                with clock:
+                                    produced = _copy_recorded(
+                                        log, stage.kind, step.recorded.get(stage.kind, ()), observers
+                                    )
+                            else:
+                                where = f"in the {stage.kind} plugin {stage.name!r} at frame {frame.index}"
+                                tick = time.perf_counter()
+                                produced = list(stage.process(inputs))
+                                timer.add(stage.kind, time.perf_counter() - tick)
+                                with clock:
+                                    capture.flush(log, last_stamp)
+                                    _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                            inputs.outputs[stage.kind] = produced
+                            inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
+                        n_frames += 1
+                        if scene is not None:
+                            with clock:
+                                scene.after_frame(log, last_stamp)
+                        bar.update()
                     with clock:
-                        capture.flush(log, last_stamp)
-                        info = feed.log_frame(log, step)
-                    observers.observe("frames", info)
-                    inputs = StageInputs(frame=frame, outputs={}, stages={})
+                        log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
+                    recorded_finish = feed.recorded_finish()
                     for stage in stages:
                         if stage.kind in recorded:
                             with clock:
-                                produced = _copy_recorded(log, stage.kind, step.recorded.get(stage.kind, ()), observers)
-                        else:
-                            where = f"in the {stage.kind} plugin {stage.name!r} at frame {frame.index}"
-                            tick = time.perf_counter()
-                            produced = list(stage.process(inputs))
-                            timer.add(stage.kind, time.perf_counter() - tick)
-                            with clock:
-                                capture.flush(log, last_stamp)
-                                _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
-                        inputs.outputs[stage.kind] = produced
-                        inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
-                    n_frames += 1
-                    if scene is not None:
+                                _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
+                            continue
+                        where = f"in the {stage.kind} plugin {stage.name!r} finishing the run"
+                        tick = time.perf_counter()
+                        produced = list(stage.finish())
+                        timer.finish_seconds[stage.kind] = time.perf_counter() - tick
                         with clock:
-                            scene.after_frame(log, last_stamp)
-                    bar.update()
-                with clock:
-                    log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
-                recorded_finish = feed.recorded_finish()
-                for stage in stages:
-                    if stage.kind in recorded:
+                            capture.flush(log, last_stamp)
+                            _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                    for stage in stages:
+                        where = f"in the {stage.kind} plugin {stage.name!r} giving its statistics"
+                        values = (
+                            feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
+                        )
+                        statistics[stage.kind] = values
                         with clock:
-                            _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
-                        continue
-                    where = f"in the {stage.kind} plugin {stage.name!r} finishing the run"
+                            log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
+                    seconds = time.perf_counter() - started
+                    phases["frame_loop"] = seconds
+                    where = "in evaluation"
+                    metrics, sections = _evaluate(pipeline, feed, out_dir, evaluations, statistics, n_frames, seconds)
+                    phases["evaluation"] = time.perf_counter() - started - seconds
+                    metrics["timing"] = timer.summary()
+                    metrics["evaluation_seconds"] = phases["evaluation"]
                     tick = time.perf_counter()
-                    produced = list(stage.finish())
-                    timer.finish_seconds[stage.kind] = time.perf_counter() - tick
                     with clock:
                         capture.flush(log, last_stamp)
-                        _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
-                for stage in stages:
-                    where = f"in the {stage.kind} plugin {stage.name!r} giving its statistics"
-                    values = feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
-                    statistics[stage.kind] = values
-                    with clock:
-                        log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
-                seconds = time.perf_counter() - started
-                ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
-            except KeyboardInterrupt as exc:
-                ending = ("warning", f"run interrupted ({str(exc) or 'SIGINT'}) after {n_frames} frames")
-                raise
-            except SlamfrontError as exc:
-                ending = ("error", f"run stopped by bad input after {n_frames} frames: {exc}")
-                raise
-            except BaseException as exc:
-                ending = ("error", f"run failed after {n_frames} frames {where}: {type(exc).__name__}: {exc}")
-                raise
-            finally:
-                bar.close()
+                        log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
+                    ending = ("info", f"run completed: {n_frames} frames in {seconds:.2f} s")
+                except KeyboardInterrupt as exc:
+                    ending = ("warning", f"run interrupted ({str(exc) or 'SIGINT'}) after {n_frames} frames {where}")
+                    raise
+                except SlamfrontError as exc:
+                    ending = ("error", f"run stopped by bad input after {n_frames} frames {where}: {exc}")
+                    raise
+                except BaseException as exc:
+                    ending = ("error", f"run failed after {n_frames} frames {where}: {type(exc).__name__}: {exc}")
+                    raise
+                finally:
+                    if bar is not None:
+                        bar.close()
+                    if not log.failed:  # after a failed write (a full disk) the file is left as it is
+                        with clock:
+                            capture.flush(log, last_stamp)  # what the failing call logged, too
+                            if scene is not None:
+                                scene.write(log, last_stamp)
+                            note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                            line = foxglove.log_line(ending[1] + note, last_stamp, ending[0])
+                            log.write_foxglove(LOG_TOPIC, line, last_stamp)
                 with clock:
-                    capture.flush(log, last_stamp)  # what the failing call logged, too
-                    if scene is not None:
-                        scene.write(log, last_stamp)
-                    note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
-                    log.write_foxglove(LOG_TOPIC, foxglove.log_line(ending[1] + note, last_stamp, ending[0]), last_stamp)
-
-            where = "while evaluating the run"
-            metrics: dict[str, Any] = {
-                "recipe": recipe.name,
-                "seconds": seconds,
-                "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
-                "n_frames": n_frames,
-            }
-            for stage in stages:
-                for key, value in statistics[stage.kind].items():
-                    metrics[key if key not in metrics else f"{stage.kind}.{key}"] = value
-            names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
-            context = EvaluationContext(feed.source, out_dir, recipe.eval, dict(metrics), names)
-            sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
-            for section in sections:
-                metrics.update(section.metrics)
-            metrics["timing"] = timer.summary()
-            with clock:
-                capture.flush(log, last_stamp)
-                log.write(METRICS_TOPIC, RunMetrics(values=metrics), last_stamp)
-                log.close()
+                    log.close()
+                phases["log_close"] = time.perf_counter() - tick
+        finally:
+            folder.record(complete=True)
 
         where = "while writing metrics.json and the report"
-        metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
-        sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
-        metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
-        report_path = write_report(out_dir, recipe, origin, metrics, sections)
-        html_path = write_html(report_path)
+        tick = time.perf_counter()
+        with _writing_outputs(out_dir, "the run completed and its log is complete, but"):
+            metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
+            sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
+            metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
+            report_path = write_report(out_dir, recipe, origin, metrics, sections)
+            html_path = write_html(report_path)
+        phases["report"] = time.perf_counter() - tick
     except BaseException as exc:
         if log_opened:
             note_run_failure(exc, log_path, where)
         raise
-    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path)
+    folder.record(complete=True)
+    return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path, phase_seconds=phases)
 
 
 def _logger_packages(pipeline: Pipeline) -> set[str]:
@@ -398,6 +421,46 @@ def _warn_if_no_query_is_reached(pipeline: Pipeline, feed: FrameFeed, max_frames
             "no query is scored (recall will be 0); raise --max-frames above %d",
             max_frames, with_match[0], with_match[0],
         )
+
+
+_OUTPUT_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+"""Failures to write outputs that are the machine's state, not a bug: a full disk, a
+file-size limit, a quota, a read-only or forbidden folder."""
+
+
+@contextlib.contextmanager
+def _writing_outputs(out_dir: Path, context: str = "") -> Iterator[None]:
+    """Turn a full disk (or a folder that became unwritable) into a one-line error."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in _OUTPUT_ERRNOS:
+            raise
+        prefix = f"{context} " if context else ""
+        raise SlamfrontError(f"{out_dir}: {prefix}its outputs cannot be written: {exc.strerror or exc}") from None
+
+
+def _evaluate(
+    pipeline: Pipeline, feed: FrameFeed, out_dir: Path, evaluations: Sequence[Any],
+    statistics: dict[str, dict[str, Any]], n_frames: int, seconds: float,
+) -> tuple[dict[str, Any], list[EvaluationReport]]:
+    """The run's metrics and report sections; evaluations write their plots meanwhile."""
+    metrics: dict[str, Any] = {
+        "recipe": pipeline.recipe.name,
+        "seconds": seconds,
+        "frames_per_second": n_frames / seconds if seconds > 0 else 0.0,
+        "n_frames": n_frames,
+    }
+    for kind, values in statistics.items():
+        for key, value in values.items():
+            metrics[key if key not in metrics else f"{kind}.{key}"] = value
+    names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
+    context = EvaluationContext(feed.source, out_dir, pipeline.recipe.eval, dict(metrics), names)
+    with _writing_outputs(out_dir):
+        sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
+    for section in sections:
+        metrics.update(section.metrics)
+    return metrics, sections
 
 
 def _log_statistics(
@@ -431,29 +494,3 @@ def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
 
-
-def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
-    """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
-
-
-def _finite(value: Any) -> Any:
-    """NaN and infinities become null: metrics.json must be strict JSON for other tools."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {type(value).__name__} to metrics.json")

@@ -122,10 +122,13 @@ class LocalBackend:
                     lost: list[RunTask] = []
                     for future in done:
                         task = in_flight.pop(future)
-                        try:
+                        error = future.exception()  # the worker's, never this process's own Ctrl-C
+                        if error is None:
                             yield future.result()
-                        except BrokenProcessPool:
+                        elif isinstance(error, BrokenProcessPool):
                             lost.append(task)
+                        else:  # e.g. an outcome that could not be sent back: that run failed
+                            yield died(task, f"{type(error).__name__}: {error}")
                     if lost:  # every run still in flight went down with the pool
                         lost += in_flight.values()
                         in_flight.clear()

@@ -27,6 +27,7 @@ from slamfront.campaign.sweepfile import Sweep, read_sweep
 from slamfront.campaign.task import RunTask
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
 from slamfront.interrupts import Interrupts
+from slamfront.outputs import safe_name, same_file
 
 
 @dataclass
@@ -53,7 +54,7 @@ def plan_campaign(sweep_path: Path, max_frames: int | None = None) -> tuple[Swee
 
 
 def default_out_dir(sweep: Sweep) -> Path:
-    return Path("logs") / "sweeps" / sweep.name
+    return Path("logs") / "sweeps" / safe_name(sweep.name)
 
 
 def run_campaign(
@@ -77,8 +78,17 @@ def run_campaign(
     sweep, runs = plan_campaign(sweep_path, max_frames)
     out_dir = (out_dir or default_out_dir(sweep)).resolve()
     store = CampaignStore(out_dir)
-    store.runs_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(sweep_path, out_dir / "sweep.yaml")
+    with store.locked():  # one campaign per folder at a time
+        return _run_locked(sweep_path, sweep, runs, store, backend, force, progress, data_root)
+
+
+def _run_locked(
+    sweep_path: Path, sweep: Sweep, runs: list[PlannedRun], store: CampaignStore, backend: Backend,
+    force: bool, progress: bool | None, data_root: Path | None,
+) -> CampaignResult:
+    out_dir = store.root
+    if not same_file(sweep_path, out_dir / "sweep.yaml"):  # resuming from the copy is fine
+        shutil.copyfile(sweep_path, out_dir / "sweep.yaml")
     finished = {} if force else store.finished()
     folders = {run.key: finished[run.key] for run in runs if run.key in finished}
     records = {key: store.read_record(folder) or {} for key, folder in folders.items()}

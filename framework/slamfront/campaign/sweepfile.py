@@ -8,6 +8,7 @@ paths (``loop_detector.params.threshold``); values are YAML values.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from slamfront.errors import RecipeError
+from slamfront.limits import over_limit
 from slamfront.recipe import _format_validation, find_named_file, find_recipe, read_yaml_mapping
 from slamfront.resources import shipped_dir
 
@@ -119,6 +121,17 @@ class Sweep(_Strict):
             return {Path(self.recipe).stem: ("recipe", MethodSpec(recipe=self.recipe))}
         return {label: (f"recipes.{label}.recipe", spec) for label, spec in self.recipes.items()}
 
+    def run_count(self) -> tuple[int, str]:
+        """How many runs the sweep expands to, and the field that multiplies it most."""
+        factors = {
+            "recipes": len(self.recipes) or 1,
+            "variants": len(self.variants) or 1,
+            "cases": len(self.cases) or 1,
+            "grid": math.prod(len(values) for values in self.grid.values()),
+            "repetitions": self.repetitions,
+        }
+        return math.prod(factors.values()), max(factors, key=lambda name: factors[name])
+
     def parameter_paths(self) -> list[str]:
         """The override paths that vary between runs (result columns), in a stable order."""
         paths: list[str] = []
@@ -141,9 +154,14 @@ def read_sweep(path: Path) -> Sweep:
     """Parse and validate a sweep file (its structure; recipes are checked by :func:`resolve_recipe`)."""
     raw = read_yaml_mapping(path, "sweep")
     try:
-        return Sweep.model_validate(raw)
+        sweep = Sweep.model_validate(raw)
     except ValidationError as exc:
         raise RecipeError(f"{path}: {_format_validation(exc, '', Sweep).replace('Value error, ', '')}") from exc
+    count, field = sweep.run_count()
+    problem = over_limit("sweep_runs", count, "the number of runs (recipes x variants x cases x grid x repetitions)")
+    if problem:  # checked before a single run is expanded
+        raise RecipeError(f"{path}: {field}: {problem}")
+    return sweep
 
 
 def resolve_recipe(sweep_path: Path, field: str, recipe: str) -> Path:

@@ -97,6 +97,11 @@ def run_one(task: RunTask) -> RunOutcome:
             failure = run_failure_of(exc)
             outcome.error = f"{type(exc).__name__}: {exc}" + (f" ({failure.where})" if failure else "")
             (out_dir / ERROR_FILE).write_text(traceback.format_exc())
+        except (SystemExit, KeyboardInterrupt) as exc:
+            # a run that calls sys.exit() or is interrupted ends that run, not the campaign
+            # (on Ray the same run is a failed task too)
+            outcome.error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+            (out_dir / ERROR_FILE).write_text(traceback.format_exc())
         outcome.wall_seconds = time.perf_counter() - started
         if task.out_dir is None:
             outcome.files = {

@@ -35,6 +35,7 @@ from slamfront.cli import (
 )
 from slamfront.errors import SlamfrontError, run_failure_of
 from slamfront.logcapture import TerminalHandler
+from slamfront.text import shorten
 
 COMMANDS = (
     run_cmd,
@@ -54,12 +55,19 @@ COMMANDS = (
 )
 
 
+class _Version(argparse.Action):
+    """``--version``, looked up only when asked (reading the package metadata costs ~20 ms)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: object, **kwargs: object) -> None:
+        parser.exit(message=f"slamfront {slamfront.__version__}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slamfront",
         description="Plugin-based visual SLAM front end: run and replay recipes, inspect, compare and recover logs, list plugins, evaluate.",
     )
-    parser.add_argument("--version", action="version", version=f"slamfront {slamfront.__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="show the version and exit")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True, help="what to do")
     for command in COMMANDS:
         command.add_parser(commands)
@@ -67,25 +75,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (see docs: shell completion)
-        import argcomplete
-
-        argcomplete.autocomplete(parser)
-    args = parser.parse_args(argv)
     terminal = TerminalHandler()  # plugins' and slamfront's warnings, above the progress bar
     logging.getLogger().addHandler(terminal)
-    try:
+    try:  # parsing too: a Ctrl-C while the parser imports plugins is one line, not a traceback
+        parser = build_parser()
+        if "_ARGCOMPLETE" in os.environ:  # the shell asks for completions (see docs: shell completion)
+            import argcomplete
+
+            argcomplete.autocomplete(parser)
+        args = parser.parse_args(argv)
         return int(args.handler(args) or 0)
     except SlamfrontError as exc:
         failure = run_failure_of(exc)
         where = f" (the log written so far: {failure.log})" if failure else ""
-        print(f"slamfront: error: {exc}{where}", file=sys.stderr)
+        # one line, whatever the message quotes from a file (escapes shown, length capped)
+        print(f"slamfront: error: {shorten(str(exc), 2000)}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         failure = run_failure_of(exc)
-        where = f": {failure.log}" if failure else ""
-        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}); the log written so far is finalised{where}", file=sys.stderr)
+        finalised = f"; the log written so far is finalised: {failure.log}" if failure else ""
+        print(f"slamfront: interrupted ({str(exc) or 'SIGINT'}){finalised}", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `slamfront plugins | head`
         return 0

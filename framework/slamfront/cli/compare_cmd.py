@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slamfront.campaign import LocalBackend
 from slamfront.cli.completion import complete_recipes
-from slamfront.compare import compare
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -33,6 +31,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.campaign import LocalBackend
+    from slamfront.compare import compare
+
     result = compare(
         args.recipes, args.out, LocalBackend(args.workers), args.overrides, max_frames=args.max_frames,
         progress=False if args.quiet else None, force=args.force,

@@ -12,13 +12,15 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from slamfront.data import DATA_ENV, data_root, download_root, user_data_dir
-from slamfront.datasets import DatasetDownload, UnreachableError, fetch
+from slamfront.data import DATA_ENV, MIRROR_ENV, data_root, download_root, user_data_dir
 from slamfront.errors import DataError
-from slamfront.manifest import MIRROR_ENV, PinnedDataset, PinnedFile, fetch_dataset, load_manifest
-from slamfront.registry import PluginRegistry
-from slamfront.suggest import did_you_mean
+
+if TYPE_CHECKING:  # the rest is imported when the command runs: its parser stays light
+    from slamfront.datasets import DatasetDownload
+    from slamfront.manifest import PinnedDataset, PinnedFile
+    from slamfront.registry import PluginRegistry
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -53,6 +55,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, DatasetDownload]]:
     """Every dataset the installed sources declare: ``{name: (source plugin, download)}``."""
+    from slamfront.registry import PluginRegistry
+
     found: dict[str, tuple[str, DatasetDownload]] = {}
     for info in (registry or PluginRegistry()).all("source"):
         for spec in getattr(info.cls, "downloads", ()):
@@ -61,6 +65,9 @@ def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, Da
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.datasets import fetch
+    from slamfront.suggest import did_you_mean
+
     if args.action == "fetch":
         return _fetch(args)
     if args.action == "path" and not args.names:
@@ -86,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
+    from slamfront.manifest import load_manifest
+
     width = max((len(n) for n in datasets), default=4)
     print("Public datasets the sources read (`slamfront datasets download NAME`):")
     for name, (source, spec) in sorted(datasets.items()):
@@ -106,6 +115,8 @@ def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
 
 
 def _fetch(args: argparse.Namespace) -> int:
+    from slamfront.manifest import load_manifest
+
     pinned = {d.name: d for d in load_manifest()}
     if args.for_tests == bool(args.names):
         raise DataError(f"`slamfront datasets fetch` needs --for-tests or pinned dataset names: {', '.join(pinned)}")
@@ -144,6 +155,9 @@ def _fetch_each(
 ) -> list[str]:
     """Fetch each dataset; one line on stderr for each that fails. Once a host is unreachable
     (offline), the rest are listed without trying, so offline costs no time-outs."""
+    from slamfront.datasets import UnreachableError
+    from slamfront.manifest import fetch_dataset
+
     failed: list[str] = []
     offline: str | None = None
     for dataset in todo:

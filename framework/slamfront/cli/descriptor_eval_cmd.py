@@ -7,15 +7,15 @@ import itertools
 import json
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from slamfront.data import data_root
-from slamfront.descriptor_eval import DescriptorChoice, DescriptorEvaluation, evaluate_descriptors
 from slamfront.errors import DataError, PluginError
-from slamfront.imageio import list_images, read_image
-from slamfront.local_features import DESCRIPTORS, DETECTORS, SURF_UNAVAILABLE
-from slamfront.matching import MatchingConfig
+from slamfront.outputs import make_folder
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from slamfront.descriptor_eval import DescriptorChoice, DescriptorEvaluation
 
 # Barbosa 2017, tables 3 and 4 (TUM RGB-D fr2/pioneer_slam, OpenCV 3.0, SURF included)
 PUBLISHED = {
@@ -60,6 +60,9 @@ def add_parser(tools: argparse._SubParsersAction) -> None:
 
 def parse_choices(text: str) -> list[DescriptorChoice]:
     """``--descriptors`` as choices, refusing unknown names (and SURF, with the reason)."""
+    from slamfront.descriptor_eval import DescriptorChoice
+    from slamfront.local_features import DESCRIPTORS, DETECTORS, SURF_UNAVAILABLE
+
     choices = []
     for item in filter(None, (part.strip() for part in text.split(","))):
         choice = DescriptorChoice.parse(item)
@@ -77,6 +80,9 @@ def parse_choices(text: str) -> list[DescriptorChoice]:
 
 def frames_of(source: str, step: int, limit: int | None) -> tuple[str, Iterator[tuple[str, np.ndarray]]]:
     """A label and the (name, grey image) pairs of a folder or of a recipe's source."""
+    from slamfront.data import data_root
+    from slamfront.imageio import list_images, read_image
+
     folder = Path(source)
     if not folder.is_dir() and not folder.is_absolute() and (data_root() / folder).is_dir():
         folder = data_root() / folder
@@ -92,6 +98,9 @@ def frames_of(source: str, step: int, limit: int | None) -> tuple[str, Iterator[
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.descriptor_eval import evaluate_descriptors
+    from slamfront.matching import MatchingConfig
+
     choices = parse_choices(args.descriptors)
     for name, value in (("--step", args.step), ("--neighbours", args.neighbours), ("--top", args.top),
                         ("--max-features", args.max_features), ("--targets", args.targets)):
@@ -106,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise DataError(f"{args.source}: {exc}") from None
     out = args.out or Path("logs") / "descriptor_eval" / label
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
@@ -120,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _tables(study: DescriptorEvaluation) -> dict[str, object]:
+    import numpy as np
+
     return {
         "summary": study.summary(),
         "global_test": {r.label: {str(t): r.top[t] for t in study.targets} for r in study.results},
@@ -169,6 +180,8 @@ def _report(study: DescriptorEvaluation, source: str, figures: list[str]) -> str
 
 
 def _plots(study: DescriptorEvaluation, out: Path) -> list[str]:
+    import numpy as np
+
     from slamfront.report import plots
 
     offsets = np.arange(-study.neighbours, study.neighbours + 1)
@@ -182,6 +195,8 @@ def _plots(study: DescriptorEvaluation, out: Path) -> list[str]:
 
 
 def _plain(value: object) -> object:
+    import numpy as np
+
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):

@@ -7,8 +7,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from slamfront.mcaplog.diff import DEFAULT_IGNORED_TOPICS, diff_logs
-from slamfront.mcaplog.reader import log_file
+from slamfront.errors import LogError
+from slamfront.text import printable
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -18,7 +18,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description=(
             "Compare two logs topic by topic and report the first differing message of each topic "
             "(topic, index, field). Timings are left out by default: the /log topic and the wall-time, "
-            "rate and memory keys of /metrics and of the stage statistics. Exit 0 when identical, 1 when not."
+            "rate and memory keys of /metrics and of the stage statistics. Exit 0 when identical, 1 when not, "
+            "2 when a log is damaged or unreadable."
         ),
     )
     parser.add_argument("log_a", type=Path, help="first .mcap log (or run folder)")
@@ -26,13 +27,20 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--ignore", action="append", default=[], metavar="TOPIC",
                         help="also leave out topics matching this glob, e.g. '/camera/*' (repeatable)")
     parser.add_argument("--strict", action="store_true",
-                        help=f"compare everything, timings and {', '.join(DEFAULT_IGNORED_TOPICS)} included")
+                        help="compare everything, timings and the /log topic included")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.diff import diff_logs
+    from slamfront.mcaplog.reader import log_file, summarize
+
     a, b = log_file(args.log_a), log_file(args.log_b)
+    for path in (a, b):
+        summary = summarize(path)
+        if not summary.complete:  # comparing what is readable could call two different logs identical
+            raise LogError(f"{path}: the log is damaged ({summary.problem}); `slamfront recover` it, then diff the copy")
     result = diff_logs(a, b, ignore=args.ignore, strict=args.strict)
     if args.json:
         print(json.dumps({
@@ -47,6 +55,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"identical: {result.messages_compared} messages on {result.topics_compared} topics{ignored}")
     else:
         for difference in result.differences:
-            print(difference.describe())
+            print(printable(difference.describe(), keep_newlines=False))
         print(f"{len(result.differences)} of {result.topics_compared} topics differ (A = {a}, B = {b})")
     return 0 if result.identical else 1

@@ -5,15 +5,19 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from slamfront.core.errors import CoreError
-from slamfront.core.trajectory import TrajectoryEvaluation, evaluate_poses, evaluate_trajectories
 from slamfront.errors import DataError
-from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory
+from slamfront.outputs import make_folder
+
+if TYPE_CHECKING:
+    from slamfront.core.trajectory import TrajectoryEvaluation
+    from slamfront.formats.poses import Trajectory
 
 TIMED_FORMATS = ("tum",)
+FORMATS = ("kitti", "pose_lines", "redwood_log", "tum")
+"""The names of :data:`slamfront.formats.poses.TRAJECTORY_READERS` (listed here so that
+``--help`` does not import the readers; a test keeps the two equal)."""
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -34,7 +38,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     traj.add_argument("ground_truth", type=Path, metavar="GROUND_TRUTH", help="the ground-truth trajectory file")
     traj.add_argument("estimate", type=Path, metavar="ESTIMATE", help="the estimated trajectory file")
-    traj.add_argument("--format", choices=sorted(TRAJECTORY_READERS), default="tum", help="file format (default tum)")
+    traj.add_argument("--format", choices=FORMATS, default="tum", help="file format (default tum)")
     traj.add_argument("--align", choices=("se3", "sim3", "none"), default="se3",
                       help="alignment before ATE: rigid (default), with scale (monocular), or none")
     traj.add_argument("--delta", type=float, default=1, help="RPE interval (default 1)")
@@ -52,6 +56,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def load_and_evaluate(args: argparse.Namespace) -> tuple[Trajectory, Trajectory, TrajectoryEvaluation]:
     """Read both files and compute ATE/RPE, naming the files in any error."""
+    from slamfront.core.errors import CoreError
+    from slamfront.core.trajectory import evaluate_poses, evaluate_trajectories
+    from slamfront.formats.poses import TRAJECTORY_READERS
+
     read = TRAJECTORY_READERS[args.format]
     gt, est = read(args.ground_truth), read(args.estimate)
     try:
@@ -73,16 +81,22 @@ def load_and_evaluate(args: argparse.Namespace) -> tuple[Trajectory, Trajectory,
 
 
 def run_traj(args: argparse.Namespace) -> int:
+    import numpy as np
+
     gt, est, result = load_and_evaluate(args)
     metrics = result.metrics()
     if args.plot is not None:
         from slamfront.report import plots
 
         aligned = result.ate.alignment.apply_to_poses(est.poses[result.pairs[:, 1]])
-        plots.trajectories_2d(
-            {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
-            args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
-        )
+        make_folder(args.plot.parent, "folder of the plot")
+        try:
+            plots.trajectories_2d(
+                {"ground truth": gt.positions[result.pairs[:, 0]], f"estimate ({args.align} aligned)": aligned[:, :3, 3]},
+                args.plot, f"ATE RMSE {metrics['ate_rmse_m']:.4g} m",
+            )
+        except OSError as exc:
+            raise DataError(f"{args.plot}: cannot write the plot: {exc.strerror or exc}") from None
     if args.json:
         document = {"ground_truth": str(args.ground_truth), "estimate": str(args.estimate), **metrics}
         finite = {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in document.items()}
@@ -102,6 +116,8 @@ def run_traj(args: argparse.Namespace) -> int:
 
 
 def _plain(value: object) -> object:
+    import numpy as np
+
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(type(value).__name__)

@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LogSummary, log_file, read_attachment, summarize
-from slamfront.mcaplog.validate import validate_log
+from slamfront.text import printable, shorten
+
+if TYPE_CHECKING:
+    from slamfront.mcaplog.reader import LogSummary
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -20,45 +23,70 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--recipe", action="store_true", help="print the recipe the log embeds (YAML) and nothing else")
     parser.add_argument(
         "--validate", action="store_true",
-        help="also decode every message and check each topic's schema is a Foxglove or a registered slamfront one",
+        help="also decode every message, check each topic's schema is a Foxglove or a registered slamfront one, "
+        "and note what the embedded recipe would do on replay",
     )
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.reader import embedded_recipe_text, log_file, summarize
+    from slamfront.mcaplog.validate import validate_log
+    from slamfront.trust import TRUST_FLAG
+
     path = log_file(args.log)
     if args.recipe:
-        print(read_attachment(path, "recipe.yaml").decode(), end="")
+        print(printable(embedded_recipe_text(path)), end="")
         return 0
     summary = summarize(path)
     if args.json:
         print(json.dumps(summary.to_dict(), indent=2))
     else:
         _print_summary(summary)
+    valid = True
+    if args.validate:
+        # a damaged file is validated too: what can be read is checked, the damage listed
+        validation = validate_log(path)
+        for problem in validation.problems:
+            print(f"INVALID: {printable(problem, keep_newlines=False)}")
+        for field, why in _untrusted(path):
+            print(f"note: the embedded recipe's {field} {printable(why, keep_newlines=False)}: "
+                  f"replay refuses it without {TRUST_FLAG}")
+        valid = validation.valid
+        if valid:
+            print(f"valid: {validation.n_messages} messages on {validation.n_topics} topics decoded")
     if not summary.complete:
         # what could be read is shown above; the exit status says the file is damaged
         raise LogError(f"{path}: {summary.problem}")
-    if args.validate:
-        validation = validate_log(path)
-        for problem in validation.problems:
-            print(f"INVALID: {problem}")
-        if not validation.valid:
-            raise LogError(f"{path}: {len(validation.problems)} problem(s) found by --validate")
-        print(f"valid: {validation.n_messages} messages on {validation.n_topics} topics decoded")
+    if not valid:
+        raise LogError(f"{path}: {len(validation.problems)} problem(s) found by --validate")
     return 0
 
 
+def _untrusted(path: Path) -> list[tuple[str, str]]:
+    from slamfront.mcaplog.reader import embedded_recipe_text
+    from slamfront.recipe import load_yaml
+    from slamfront.trust import untrusted_fields
+
+    try:
+        raw = load_yaml(embedded_recipe_text(path), f"{path}:recipe.yaml", LogError)
+    except LogError:
+        return []  # no (readable) recipe: nothing a replay would run
+    return untrusted_fields(raw) if isinstance(raw, dict) else []
+
+
 def _print_summary(summary: LogSummary) -> None:
-    print(f"{summary.path}: {summary.size_bytes / 1e6:.2f} MB, {summary.n_messages} messages")
+    print(f"{printable(summary.path)}: {summary.size_bytes / 1e6:.2f} MB, {summary.n_messages} messages")
     if summary.start_ns is not None:
         print(f"time span: {(summary.end_ns - summary.start_ns) / 1e9:.3f} s")
     if not summary.complete:
-        print(f"INCOMPLETE: only what could be read is listed ({summary.problem})")
-    width = max((len(t.topic) for t in summary.topics), default=5)
+        print(f"INCOMPLETE: only what could be read is listed ({printable(summary.problem or '', keep_newlines=False)})")
+    width = min(max((len(t.topic) for t in summary.topics), default=5), 60)
     for topic in summary.topics:
-        print(f"  {topic.topic:<{width}}  {topic.count:>7}  {topic.schema_name} ({topic.message_encoding})")
+        name, schema = printable(topic.topic, False), printable(topic.schema_name, False)
+        print(f"  {name:<{width}}  {topic.count:>7}  {schema} ({printable(topic.message_encoding, False)})")
     for name, values in summary.metadata.items():
         shown = ", ".join(f"{k}={v}" for k, v in values.items())
-        print(f"metadata {name}: {shown[:200]}")
+        print(f"metadata {printable(name, False)}: {shorten(shown)}")
     if summary.attachments:
-        print(f"attachments: {', '.join(summary.attachments)}")
+        print(f"attachments: {shorten(', '.join(summary.attachments), 400)}")

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import get_args
-
-from pydantic import ValidationError
+from typing import TYPE_CHECKING, get_args
 
 from slamfront.errors import SlamfrontError
-from slamfront.posegraph.solver import KERNELS, KernelName, SolverOptions
-from slamfront.posegraph.workflow import optimize_file
+from slamfront.posegraph.kernels import KERNELS, KernelName
+
+if TYPE_CHECKING:
+    from slamfront.posegraph.solver import SolverOptions
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -48,6 +48,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def options_from(args: argparse.Namespace) -> SolverOptions:
     """The solver options the flags describe (invalid combinations are user errors)."""
+    from pydantic import ValidationError
+
+    from slamfront.posegraph.solver import SolverOptions
+
     try:
         return SolverOptions(
             mode=args.mode, kernel=args.kernel, kernel_parameter=args.kernel_parameter,
@@ -61,6 +65,8 @@ def options_from(args: argparse.Namespace) -> SolverOptions:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.posegraph.workflow import optimize_file
+
     options = options_from(args)
     out_dir = args.out or Path("logs") / "optimize" / args.graph.stem
     outcome = optimize_file(args.graph, out_dir, options, args.ground_truth, args.graph_format, not args.no_plots)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from slamfront.errors import SlamfrontError
-from slamfront.posegraph import study
+from slamfront.posegraph.kernels import METHODS, RATES
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -16,15 +16,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description=(
             "Add random false loop closures to each graph (rate = share of all loop closures that are false) and "
             "optimise with each method. Writes DIR/outliers.md (one table), DIR/outliers.json and "
-            "DIR/outliers.png. Methods: " + ", ".join(study.METHODS) + "."
+            "DIR/outliers.png. Methods: " + ", ".join(METHODS) + "."
         ),
     )
     parser.add_argument("graphs", type=Path, nargs="+", metavar="GRAPH", help="g2o or iSAM pose graphs")
     parser.add_argument("--ground-truth", type=Path, action="append", default=[], metavar="FILE",
                         help="ground truth of each graph, in the same order (repeat per graph)")
-    parser.add_argument("--rates", type=float, nargs="+", default=list(study.RATES), metavar="RATE",
+    parser.add_argument("--rates", type=float, nargs="+", default=list(RATES), metavar="RATE",
                         help="outlier rates in [0, 1) (default: 0 0.1 0.2 0.5)")
-    parser.add_argument("--methods", nargs="+", default=list(study.METHODS), choices=list(study.METHODS),
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS),
                         metavar="METHOD", help="methods to compare (default: all)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the false closures")
     parser.add_argument("-o", "--out", type=Path, default=Path("logs") / "outliers", help="output folder")
@@ -33,6 +33,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.posegraph import study
+
     if args.ground_truth and len(args.ground_truth) != len(args.graphs):
         raise SlamfrontError(
             f"--ground-truth: {len(args.ground_truth)} files for {len(args.graphs)} graphs; give one per graph or none"

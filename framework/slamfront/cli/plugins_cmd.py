@@ -6,8 +6,7 @@ import argparse
 import json
 import sys
 
-from slamfront.plugin import KINDS
-from slamfront.registry import PluginRegistry
+from slamfront.kinds import KINDS
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -22,6 +21,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.registry import PluginRegistry
+
     registry = PluginRegistry(modules=args.plugin_module)
     infos = registry.all(args.kind)
     if args.json:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slamfront.mcaplog.reader import log_file
-from slamfront.mcaplog.recover import recover_log
+from slamfront.text import shorten
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -24,6 +23,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.mcaplog.reader import log_file
+    from slamfront.mcaplog.recover import recover_log
+
     recovery = recover_log(log_file(args.log), log_file(args.out))
     kept = (
         f"{recovery.messages} messages on {recovery.topics} topics, {recovery.metadata} metadata records, "
@@ -34,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
     else:
         salvaged = f" ({recovery.salvaged_messages} from the incomplete last chunk)" if recovery.salvaged_messages else ""
         print(f"recovered {kept}{salvaged} into {recovery.target}")
-        print(f"lost: {recovery.problem}")
+        print(f"lost: {shorten(recovery.problem or '', 4000)}")
     return 0

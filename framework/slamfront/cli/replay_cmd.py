@@ -5,11 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slamfront.cli.run_cmd import print_outcome
-from slamfront.mcaplog.reader import log_file
-from slamfront.plugin import STAGE_KINDS
-from slamfront.recipe import apply_overrides, load_recipe, parse_recipe
-from slamfront.replay import log_recipe, replay_log
+from slamfront.kinds import STAGE_KINDS
+from slamfront.outputs import safe_name
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -33,11 +30,25 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="override a field of the replay recipe, e.g. --set loop_detector.params.threshold=0.3",
     )
+    parser.add_argument(
+        "--trust-log", action="store_true",
+        help="let the log's recipe import its plugin_modules and read paths outside the data root "
+        "(a log is data: without this, such fields are refused)",
+    )
+    parser.add_argument(
+        "--salvage", action="store_true",
+        help="replay a damaged log as far as it can be read, saying what was lost (without it, a damaged log is refused)",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.cli.run_cmd import print_outcome
+    from slamfront.mcaplog.reader import log_file
+    from slamfront.recipe import apply_overrides, load_recipe, parse_recipe
+    from slamfront.replay import log_recipe_data, replay_log
+
     log = log_file(args.log)
     recipe, origin = None, None
     if args.recipe:
@@ -45,9 +56,12 @@ def run(args: argparse.Namespace) -> int:
         origin = str(path)
     elif args.overrides:
         origin = f"{log}:recipe.yaml"
-        recipe = parse_recipe(apply_overrides(log_recipe(log).model_dump(mode="json"), args.overrides), origin)
-    name = recipe.name if recipe is not None else log_recipe(log).name
-    out_dir = args.out or Path("logs") / f"{name}_replay"
-    result = replay_log(log, out_dir, recipe, origin, args.from_kind, progress=False if args.quiet else None)
+        recipe = parse_recipe(apply_overrides(log_recipe_data(log), args.overrides), origin)
+    name = recipe.name if recipe is not None else str(log_recipe_data(log).get("name", "run"))
+    out_dir = args.out or Path("logs") / f"{safe_name(name)}_replay"  # the name may come from a stranger's log
+    result = replay_log(
+        log, out_dir, recipe, origin, args.from_kind, progress=False if args.quiet else None,
+        trust_log=args.trust_log, salvage=args.salvage,
+    )
     print_outcome(result)
     return 0

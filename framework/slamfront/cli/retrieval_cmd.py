@@ -6,11 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-
 from slamfront.errors import RecipeError
-from slamfront.evaluation.retrieval import descriptor_curve
-from slamfront.report import plots
+from slamfront.outputs import make_folder
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -34,6 +31,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from slamfront.evaluation.retrieval import descriptor_curve
+    from slamfront.report import plots
+
     if args.max_k < 1:
         raise RecipeError(f"--max-k must be at least 1, got {args.max_k}")
     variants: dict[str, list[str]] = {"recipe": []}
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         for label, extra in variants.items()
     }
     out = args.out or Path("logs") / f"{Path(args.recipe).stem}-retrieval"
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     ks = np.arange(1, args.max_k + 1)
     figure = plots.recall_curves({label: (ks, curve) for label, curve in curves.items()}, out / "retrieval.png",
                                  title="correct reference among the psi nearest descriptors")

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slamfront.cli.completion import complete_overrides, complete_recipes
-from slamfront.recipe import build_pipeline, load_recipe
-from slamfront.runtime import RunResult, run_pipeline
+from slamfront.outputs import safe_name
+from slamfront.text import shorten
+
+if TYPE_CHECKING:
+    from slamfront.runtime import RunResult
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -33,11 +37,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.recipe import build_pipeline, load_recipe
+    from slamfront.runtime import run_pipeline
+
     recipe, path = load_recipe(args.recipe, args.overrides)
     if args.plugin_module:
         recipe = recipe.model_copy(update={"plugin_modules": [*recipe.plugin_modules, *args.plugin_module]})
     pipeline = build_pipeline(recipe, str(path))
-    out_dir = args.out or Path("logs") / recipe.name
+    out_dir = args.out or Path("logs") / safe_name(recipe.name)
     result = run_pipeline(
         pipeline, str(path), out_dir, progress=False if args.quiet else None, max_frames=args.max_frames
     )
@@ -48,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
 def print_outcome(result: RunResult) -> None:
     """Where the outputs are and the headline metrics."""
     metrics = result.metrics
+    for note in result.notes:
+        print(f"warning: {shorten(note, 2000)}")
     print(f"log:     {result.log_path}")
     print(f"report:  {result.html_path or result.report_path}")
     print(f"metrics: {result.metrics_path}")

@@ -11,7 +11,6 @@ import shutil
 from pathlib import Path
 
 from slamfront.errors import SlamfrontError
-from slamfront.recipe import read_yaml_mapping
 from slamfront.resources import LAYOUT, layout_path, shipped_dir, shipped_files
 
 
@@ -38,6 +37,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def print_listing(paths: list[Path], what: str) -> None:
     """One line per file: its stem and the first line of its ``description``."""
+    from slamfront.recipe import read_yaml_mapping  # pydantic and the plugins: not for the parser
+
     width = max((len(p.stem) for p in paths), default=4)
     for path in paths:
         description = str(read_yaml_mapping(path, what).get("description", "")).strip().splitlines()

@@ -5,11 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from slamfront.campaign import LocalBackend, RayBackend, find_sweep, plan_campaign, run_campaign
-from slamfront.campaign.backends import Backend
-from slamfront.campaign.campaign import default_out_dir
-from slamfront.campaign.store import CampaignStore
+if TYPE_CHECKING:
+    from slamfront.campaign.backends import Backend
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -46,12 +45,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def _backend(args: argparse.Namespace) -> Backend:
+    from slamfront.campaign import LocalBackend, RayBackend
+
     if args.ray:
         return RayBackend(args.ray, args.workers, args.cpus_per_run, shared_dir=True if args.shared_dir else None)
     return LocalBackend(args.workers)
 
 
 def run(args: argparse.Namespace) -> int:
+    from slamfront.campaign import find_sweep, run_campaign
+
     path = find_sweep(args.sweep)
     if args.dry_run:
         return _dry_run(path, args)
@@ -73,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _dry_run(path: Path, args: argparse.Namespace) -> int:
+    from slamfront.campaign import plan_campaign
+    from slamfront.campaign.campaign import default_out_dir
+    from slamfront.campaign.store import CampaignStore
+
     sweep, runs = plan_campaign(path, args.max_frames)
     out_dir = args.out or default_out_dir(sweep)
     finished = CampaignStore(out_dir.resolve()).finished() if not args.force else {}

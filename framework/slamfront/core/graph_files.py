@@ -150,11 +150,17 @@ def is_number(token: str) -> bool:
     return True
 
 
+_MAX_ID = (1 << 63) - 1  # ids are stored as int64
+
+
 def _ids(tokens: list[str], name: str, line: int, tag: str) -> list[int]:
     try:
-        return [int(token) for token in tokens]
+        ids = [int(token) for token in tokens]
     except ValueError:
         raise CoreError(f"{name}:{line}: {tag}: vertex ids must be integers, got {' '.join(tokens)!r}") from None
+    if any(not -_MAX_ID <= i <= _MAX_ID for i in ids):
+        raise CoreError(f"{name}:{line}: {tag}: a vertex id is outside the 64-bit range, got {' '.join(tokens)[:80]!r}")
+    return ids
 
 
 def parse_graph(lines: Iterable[str], name: str = "graph", graph_format: GraphFormat = "auto") -> ParsedGraph:
@@ -268,8 +274,12 @@ def _assemble(rows: dict[str, list[tuple[int, list[int], list[float]]]], dim: in
     )
 
 
-def _fmt(values: Iterable[float]) -> str:
-    return " ".join(f"{float(v):.12g}" for v in values)
+def _rows(tag: str, ids: list[np.ndarray], values: list[np.ndarray]) -> list[str]:
+    """``tag id... value...`` lines, ids as integers and values as ``%.12g``,
+    formatted a row at a time with one format string (several times faster than per value)."""
+    table = np.column_stack([*(np.asarray(i, dtype=np.float64) for i in ids), *values])
+    template = " ".join([tag, *["%d"] * len(ids), *["%.12g"] * (table.shape[1] - len(ids))])
+    return [template % tuple(row) for row in table.tolist()]
 
 
 def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
@@ -281,24 +291,18 @@ def format_g2o(graph: PoseGraph, poses: np.ndarray | None = None) -> str:
     out: list[str] = []
     k = graph.tangent_dim
     upper = np.triu_indices(k)
+    information = graph.information[:, upper[0], upper[1]]
     if graph.dim == 2:
         if poses is not None:
-            params = geometry.se2_parameters(poses)
-            out += [f"VERTEX_SE2 {int(i)} {_fmt(p)}" for i, p in zip(graph.ids, params)]
-        params = geometry.se2_parameters(graph.measurements)
-        out += [
-            f"EDGE_SE2 {int(s)} {int(t)} {_fmt(p)} {_fmt(info[upper])}"
-            for s, t, p, info in zip(graph.sources, graph.targets, params, graph.information)
-        ]
+            out += _rows("VERTEX_SE2", [graph.ids], [geometry.se2_parameters(poses)])
+        out += _rows("EDGE_SE2", [graph.sources, graph.targets], [geometry.se2_parameters(graph.measurements), information])
     else:
         if poses is not None:
-            translation, quaternion = poses[:, :3, 3], geometry.quaternions_of(poses)
-            out += [f"VERTEX_SE3:QUAT {int(i)} {_fmt(t)} {_fmt(q)}" for i, t, q in zip(graph.ids, translation, quaternion)]
-        translation, quaternion = graph.measurements[:, :3, 3], geometry.quaternions_of(graph.measurements)
-        out += [
-            f"EDGE_SE3:QUAT {int(s)} {int(t)} {_fmt(tr)} {_fmt(q)} {_fmt(info[upper])}"
-            for s, t, tr, q, info in zip(graph.sources, graph.targets, translation, quaternion, graph.information)
-        ]
+            out += _rows("VERTEX_SE3:QUAT", [graph.ids], [poses[:, :3, 3], geometry.quaternions_of(poses)])
+        out += _rows(
+            "EDGE_SE3:QUAT", [graph.sources, graph.targets],
+            [graph.measurements[:, :3, 3], geometry.quaternions_of(graph.measurements), information],
+        )
     if len(graph.fixed):
         out.append("FIX " + " ".join(str(int(v)) for v in graph.fixed))
     return "\n".join(out) + "\n"

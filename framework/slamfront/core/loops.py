@@ -155,12 +155,16 @@ class LoopGroundTruth:
         rows = self.rows_of(frames)
         matches = np.asarray(matches, dtype=np.int64)
         out = np.zeros(len(rows), dtype=bool)
-        for k, (row, match) in enumerate(zip(rows, matches)):
-            if row < 0 or match < 0:
-                continue
-            correct = self.matches[self.indptr[row] : self.indptr[row + 1]]
-            j = np.searchsorted(correct, match)
-            out[k] = j < len(correct) and correct[j] == match
+        valid = (rows >= 0) & (matches >= 0)
+        if not valid.any() or len(self.matches) == 0:
+            return out
+        # one search over all queries at once: (row, match) pairs as row * span + match,
+        # which keeps the CSR order (rows ascending, each row's matches sorted)
+        span = int(max(self.matches.max(), matches[valid].max())) + 1
+        stored = np.repeat(np.arange(len(self.indptr) - 1, dtype=np.int64), np.diff(self.indptr)) * span + self.matches
+        asked = rows[valid].astype(np.int64) * span + matches[valid]
+        j = np.minimum(np.searchsorted(stored, asked), len(stored) - 1)
+        out[valid] = stored[j] == asked
         return out
 
     def centre_of(self, frames: np.ndarray) -> np.ndarray:
@@ -257,10 +261,16 @@ def recall_at_k(
     positives = truth.has_true_match()
     n_positive = int(positives.sum())
     first_hit = np.full(len(frames), np.iinfo(np.int64).max)
-    for k, (frame, cands) in enumerate(zip(frames, candidates)):
-        if rows[k] < 0 or not positives[rows[k]] or cands is None or len(cands) == 0:
-            continue
-        ok = truth.is_correct(np.full(len(cands), frame), np.asarray(cands))
-        if ok.any():
-            first_hit[k] = int(np.argmax(ok))
+    asked = [
+        k for k, cands in enumerate(candidates)
+        if rows[k] >= 0 and positives[rows[k]] and cands is not None and len(cands) > 0
+    ]
+    if asked:  # every candidate of every query checked in one call
+        lengths = np.array([len(candidates[k]) for k in asked])
+        starts = np.r_[0, np.cumsum(lengths)[:-1]]
+        ok = truth.is_correct(
+            np.repeat(np.asarray(frames)[asked], lengths), np.concatenate([np.asarray(candidates[k]) for k in asked])
+        )
+        position = np.arange(len(ok)) - np.repeat(starts, lengths)
+        first_hit[asked] = np.minimum.reduceat(np.where(ok, position, np.iinfo(np.int64).max), starts)
     return {k: float(np.sum(first_hit < k) / n_positive) if n_positive else 0.0 for k in ks}

@@ -27,12 +27,14 @@ depend on the shift; the ratio does, slightly.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
+from slamfront.core.distances import pairwise
 from slamfront.core.errors import CoreError
+from slamfront.core.kernels import compiled, run_chunks, threads_for
 
 
 def matlab_round(values: np.ndarray) -> np.ndarray:
@@ -62,16 +64,17 @@ def patch_normalise(image: np.ndarray, side: int = 8) -> np.ndarray:
     return out
 
 
-def difference_columns(references: np.ndarray, queries: np.ndarray, max_elements: int = 1 << 25) -> np.ndarray:
+def difference_columns(references: np.ndarray, queries: np.ndarray, threads: int | None = None) -> np.ndarray:
     """(R, Q) float32 mean absolute differences between reference and query vectors.
 
     :param references: (R, P) descriptors (e.g. patch-normalised thumbnails).
     :param queries: (Q, P).
-    :param max_elements: bound on the temporary arrays (float path), in elements.
+    :param threads: threads of the distance engine (None: by the amount of work).
 
-    uint8 inputs (thumbnails) take OpenCV's SIMD absolute difference with exact integer
-    sums; others a chunked float32 NumPy path. Either way each entry is computed the
-    same whatever the chunking, so batch and online use give identical bits.
+    The sums come from the framework's L1 engine (:func:`slamfront.core.distances.pairwise`):
+    exact integers for uint8 thumbnails, NumPy's float32 summation order otherwise. Each
+    entry is computed the same whatever the chunking, so batch and online use give
+    identical bits. No temporary larger than the output is made.
     """
     references = np.asarray(references)
     queries = np.atleast_2d(np.asarray(queries))
@@ -79,23 +82,11 @@ def difference_columns(references: np.ndarray, queries: np.ndarray, max_elements
         raise CoreError(
             f"reference and query descriptors differ in length: {references.shape[1]} vs {queries.shape[1]}"
         )
-    n_ref, pixels = references.shape
-    out = np.empty((n_ref, len(queries)), dtype=np.float32)
-    if references.dtype == np.uint8 and queries.dtype == np.uint8:
-        for j, query in enumerate(queries):
-            absolute = cv2.absdiff(references, np.broadcast_to(query, references.shape).copy())
-            out[:, j] = cv2.reduce(absolute, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S)[:, 0]
-        out /= np.float32(pixels)
-        return out
-    references = references.astype(np.float32, copy=False)
-    queries = queries.astype(np.float32, copy=False)
-    chunk = max(1, max_elements // max(n_ref * pixels, 1))
-    for start in range(0, len(queries), chunk):
-        block = queries[start : start + chunk]
-        out[:, start : start + len(block)] = np.abs(references[:, None, :] - block[None, :, :]).sum(
-            axis=2, dtype=np.float32
-        )
-    out /= np.float32(pixels)
+    if not (references.dtype == np.uint8 and queries.dtype == np.uint8):
+        references = references.astype(np.float32, copy=False)
+        queries = queries.astype(np.float32, copy=False)
+    out = pairwise(references, queries, "l1", threads=threads)
+    out /= np.float32(references.shape[1])
     return out
 
 
@@ -157,28 +148,64 @@ def sequence_scores(columns: np.ndarray, offsets: np.ndarray, rows: np.ndarray |
     :param rows: optional sorted start rows to score (others get inf); all when None.
     :returns: (R,) cost of the best trajectory starting at each row (inf: leaves the map).
     """
-    n_ref, width = columns.shape
-    if offsets.shape[1] != width:
-        raise CoreError(f"offsets span {offsets.shape[1]} columns but the window has {width}")
+    if offsets.shape[1] != columns.shape[1]:
+        raise CoreError(f"offsets span {offsets.shape[1]} columns but the window has {columns.shape[1]}")
+    return sequence_scores_block(columns, offsets, None if rows is None else [rows])[0]
+
+
+def sequence_scores_block(
+    columns: np.ndarray,
+    offsets: np.ndarray,
+    rows: Sequence[np.ndarray | None] | None = None,
+    threads: int | None = None,
+) -> np.ndarray:
+    """:func:`sequence_scores` of consecutive queries at once (compiled, multi-threaded).
+
+    :param columns: (R, Q + ds) shifted enhanced differences; query ``n``'s window is
+        columns ``n .. n + ds``.
+    :param offsets: (V, ds + 1) from :func:`trajectory_offsets`.
+    :param rows: per query, sorted start rows to score (others inf) or None for all;
+        None: all rows of every query.
+    :param threads: None: by the amount of work.
+    :returns: (Q, R) float64 best trajectory cost per query and start row.
+
+    A query scored on every row adds each trajectory's ``ds + 1`` entries one after the
+    other; one with few rows (fewer than R / 8) gathers each trajectory and sums it in
+    NumPy's pairwise order; more rows are swept in full and the rest set to inf. These
+    are the sums of the former NumPy implementation, bit for bit.
+    """
+    n_ref, n_columns = columns.shape
+    width = offsets.shape[1]
+    n_queries = n_columns - width + 1
+    if n_queries < 1:
+        raise CoreError(f"offsets span {width} columns but the block has {n_columns}")
+    if rows is not None and len(rows) != n_queries:
+        raise CoreError(f"{len(rows)} row sets for {n_queries} queries")
     reach = int(offsets.max())
-    padded = np.concatenate([columns, np.full((reach + 1, width), np.inf, dtype=columns.dtype)])
-    best = np.full(n_ref, np.inf, dtype=np.float64)
-    if rows is None:
-        for trajectory in offsets:
-            cost = np.zeros(n_ref, dtype=np.float64)
-            for k, offset in enumerate(trajectory):
-                cost += padded[offset : offset + n_ref, k]
-            np.minimum(best, cost, out=best)
-        return best
-    rows = np.asarray(rows, dtype=np.int64)
-    if len(rows) * 8 > n_ref:
-        # a gather costs several times a contiguous add: sweep everything, keep the rows asked for
-        every = sequence_scores(columns, offsets)
-        best[rows] = every[rows]
-        return best
-    picked = padded[rows[:, None, None] + offsets[None, :, :], np.arange(width)[None, None, :]]
-    best[rows] = picked.sum(axis=2, dtype=np.float64).min(axis=1)
-    return best
+    # one contiguous (padded) vector per query column: the sweep's inner loop runs along it
+    padded = np.full((n_columns, n_ref + reach + 1), np.inf, dtype=np.float64)
+    padded[:, :n_ref] = np.asarray(columns, dtype=np.float64).T
+    offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+    out = np.empty((n_queries, n_ref), dtype=np.float64)
+    wanted = [None] * n_queries if rows is None else [None if r is None else np.asarray(r, np.int64) for r in rows]
+    swept = np.array([n for n, r in enumerate(wanted) if r is None or len(r) * 8 > n_ref], dtype=np.int64)
+    gathered = np.array([n for n, r in enumerate(wanted) if r is not None and len(r) * 8 <= n_ref], dtype=np.int64)
+    kernels = compiled()
+    if threads is None:
+        threads = threads_for(float(len(swept)) * n_ref * offsets.size)
+    if len(swept):
+        run_chunks(lambda lo, hi: kernels.sweep(padded, offsets, swept, out, lo, hi), len(swept), threads)
+        for n in swept:
+            if wanted[n] is not None:  # a sweep is cheaper than gathering many rows: keep the rows asked for
+                keep = np.full(n_ref, np.inf)
+                keep[wanted[n]] = out[n, wanted[n]]
+                out[n] = keep
+    if len(gathered):
+        lists = [wanted[n] for n in gathered]
+        starts = np.concatenate([[0], np.cumsum([len(r) for r in lists])]).astype(np.int64)
+        flat = np.concatenate(lists).astype(np.int64)
+        kernels.gather(padded, offsets, gathered, flat, starts, out, 0, len(gathered))
+    return out
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import Metric, to_one
+from slamfront.core.distances import Metric, smallest, to_one
 from slamfront.core.errors import CoreError
 
 _SLACK = 1e-5
@@ -273,8 +273,40 @@ def _row_distances(metric: Metric):  # type: ignore[no-untyped-def]
 def brute_force_knn(
     query: np.ndarray, rows: np.ndarray, k: int, metric: Metric = "l1", lo: int = 0, hi: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The reference answer :meth:`VPTree.knn` must equal: sort all distances (stable)."""
+    """The reference answer :meth:`VPTree.knn` must equal: all distances, stably ranked."""
     hi = len(rows) - 1 if hi is None else min(hi, len(rows) - 1)
     distances = to_one(query, rows[lo : hi + 1], metric)
-    order = np.argsort(distances, kind="stable")[:k]
+    order = smallest(distances, k)
     return (order + lo).astype(np.int64), distances[order].astype(np.float32)
+
+
+VPTREE_MIN_PLACES = 10_000
+"""Below this many points brute force wins whatever the data (benchmarks/results/vptree.md:
+the tree is 4-8x slower at 1,000 points even at intrinsic dimension 2)."""
+
+VPTREE_MAX_FRACTION = 0.1
+"""The tree pays when a search computes at most this share of the distances brute force
+computes (benchmarks/results/vptree.md: at 2.5 % it is 2-3x faster than brute force,
+at 96 % -- Nordland's RST-SHelo -- 6x slower: each of its distances costs more)."""
+
+
+def vptree_pays(
+    rows: np.ndarray, metric: Metric = "l1", leaf_size: int = 32, k: int = 10, probes: int = 20
+) -> VPTree | None:
+    """A VP-tree over ``rows`` (M, D) if it beats brute force on them, else None.
+
+    The rule is measured on the data, not guessed: with at least
+    :data:`VPTREE_MIN_PLACES` rows, a tree is built and ``probes`` evenly spaced rows are
+    searched (``k`` nearest); it is kept when it computed at most
+    :data:`VPTREE_MAX_FRACTION` of the distances brute force would. Counting distances
+    (not timing) keeps the choice deterministic; the answers are the same either way.
+    """
+    if len(rows) < VPTREE_MIN_PLACES:
+        return None
+    tree = VPTree(rows.shape[1], metric, leaf_size=leaf_size)
+    tree.extend(rows)
+    picked = np.unique(np.linspace(0, len(rows) - 1, probes).astype(int))
+    tree.distance_calls = 0
+    for row in picked:
+        tree.knn(rows[row], k)
+    return tree if tree.distance_calls <= VPTREE_MAX_FRACTION * len(picked) * len(rows) else None

@@ -17,7 +17,7 @@ from types import MappingProxyType
 import numpy as np
 
 from slamfront.core.errors import CoreError
-from slamfront.core.geometry import pose_from_quaternion, quaternion_of
+from slamfront.core.geometry import pose_from_quaternion, poses_from_quaternions, quaternions_of
 from slamfront.errors import DataError
 
 
@@ -82,12 +82,24 @@ def _finish(path: Path, stamps: list[float], poses: list[np.ndarray]) -> Traject
 
 def read_tum(path: Path) -> Trajectory:
     """A TUM trajectory (``t tx ty tz qx qy qz qw``)."""
-    stamps, poses = [], []
+    numbers, rows = [], []
     for number, fields in numbered_fields(path):
-        values = _floats(path, number, fields, 8, "t tx ty tz qx qy qz qw")
-        stamps.append(values[0])
-        poses.append(_pose(path, number, values[1:4], values[4:8]))
-    return _finish(path, stamps, poses)
+        rows.append(_floats(path, number, fields, 8, "t tx ty tz qx qy qz qw"))
+        numbers.append(number)
+    if not rows:
+        raise DataError(f"{path}: no poses in the file")
+    table = np.array(rows)
+    return Trajectory(table[:, 0].copy(), _poses(path, numbers, table[:, 1:4], table[:, 4:8]))
+
+
+def _poses(path: Path, numbers: list[int], translations: np.ndarray, quaternions: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses of all lines at once, the same values :func:`_pose` gives line by line;
+    a bad quaternion is reported with its line number."""
+    norms = np.linalg.norm(quaternions, axis=1)
+    bad = np.flatnonzero(~np.isfinite(norms) | (norms < 1e-12))
+    if len(bad):
+        _pose(path, numbers[bad[0]], translations[bad[0]], quaternions[bad[0]])  # raises, naming the line
+    return poses_from_quaternions(translations, quaternions, as_single=True)
 
 
 def read_pose_lines(path: Path) -> Trajectory:
@@ -128,10 +140,8 @@ def read_redwood_log(path: Path) -> Trajectory:
 
 def write_tum(path: Path, trajectory: Trajectory) -> Path:
     """Write ``t tx ty tz qx qy qz qw`` lines (full float precision)."""
-    lines = []
-    for stamp, pose in zip(trajectory.timestamps, trajectory.poses, strict=True):
-        values = [stamp, *pose[:3, 3], *quaternion_of(pose)]
-        lines.append(" ".join(repr(float(v)) for v in values))
+    table = np.column_stack([trajectory.timestamps, trajectory.poses[:, :3, 3], quaternions_of(trajectory.poses)])
+    lines = (" ".join(map(repr, row)) for row in table.tolist())
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
 

@@ -34,6 +34,8 @@ DEFAULT_IGNORED_TOPICS = ("/log",)
 VOLATILE_KEY = re.compile(r"^(timing|frames_per_second)$|^log_|seconds|_ms(_|$)|_s$|per_second|rss|memory")
 """Keys of run metrics and stage statistics that are wall times, rates or memory."""
 _VOLATILE_SCHEMAS = (RunMetrics.schema_name, StageStatistics.schema_name)
+_UNDECODABLE = (ValueError, TypeError, KeyError, AttributeError, RecursionError)
+"""What decoding a damaged or crafted JSON message raises; ``diff`` then compares bytes."""
 
 
 @dataclass(frozen=True)
@@ -85,8 +87,8 @@ def _volatile_fields(schema_name: str) -> tuple[str, ...]:
 
 def _without_volatile(decoded: dict[str, Any], schema_name: str) -> dict[str, Any]:
     """The decoded JSON message without what measures the machine."""
-    if schema_name in _VOLATILE_SCHEMAS:
-        decoded["values"] = {k: v for k, v in decoded.get("values", {}).items() if not VOLATILE_KEY.search(k)}
+    if schema_name in _VOLATILE_SCHEMAS and isinstance(decoded.get("values"), dict):
+        decoded["values"] = {k: v for k, v in decoded["values"].items() if not VOLATILE_KEY.search(k)}
     for name in _volatile_fields(schema_name):
         decoded.pop(name, None)
     return decoded
@@ -99,7 +101,13 @@ def comparable_bytes(message: LoggedMessage, strict: bool = False) -> bytes:
         return message.data
     if message.schema_name not in _VOLATILE_SCHEMAS and not _volatile_fields(message.schema_name):
         return message.data
-    return json.dumps(_without_volatile(json.loads(message.data), message.schema_name), sort_keys=True).encode()
+    try:
+        decoded = json.loads(message.data)
+    except _UNDECODABLE:
+        return message.data  # not JSON after all (damaged or crafted): compare its bytes
+    if not isinstance(decoded, dict):
+        return message.data
+    return json.dumps(_without_volatile(decoded, message.schema_name), sort_keys=True).encode()
 
 
 def _index(path: Path, ignored: Sequence[str], strict: bool) -> dict[str, list[_Entry]]:
@@ -185,7 +193,10 @@ def _fetch(path: Path, wanted: dict[str, int]) -> dict[str, LoggedMessage]:
 def _comparable(message: LoggedMessage, strict: bool) -> Any:
     """A message as nested dicts, lists and arrays."""
     if message.message_encoding == "json":
-        decoded = decode_any(message.data)
+        try:
+            decoded = decode_any(message.data)
+        except _UNDECODABLE:
+            return {"(bytes)": message.data}
         return decoded if strict else _without_volatile(decoded, message.schema_name)
     try:
         return MessageToDict(message.decoded, preserving_proto_field_name=True)

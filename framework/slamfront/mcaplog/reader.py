@@ -13,13 +13,15 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from google.protobuf.message import DecodeError
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.scan import MAGIC, RecordScanner, ScanState
+from slamfront.mcaplog.scan import MAGIC, RecordScanner, ScanState, verify_finalised
 from slamfront.messages import decode_any, message_class
+from slamfront.text import shorten
 
 # A damaged summary section fails in many layers (record parsing, struct, CRC checks);
 # every one of them means "scan the data section instead".
@@ -98,7 +100,22 @@ class LoggedMessage:
     @cached_property
     def decoded(self) -> Any:
         """A slamfront :class:`~slamfront.messages.Message` (or a dict when its type is not
-        imported), or a protobuf object for Foxglove messages."""
+        imported), or a protobuf object for Foxglove messages.
+
+        :raises LogError: the bytes do not decode (a damaged or crafted message), naming
+            the topic and the log time.
+        """
+        try:
+            return self._decode()
+        except LogError:
+            raise
+        except (ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError, DecodeError) as exc:
+            raise LogError(
+                f"{self.topic} message at {self.log_time_ns} ns does not decode as {self.schema_name or 'its schema'}: "
+                f"{type(exc).__name__}: {shorten(str(exc), 160)}"
+            ) from None
+
+    def _decode(self) -> Any:
         if self.message_encoding == "json":
             try:
                 return message_class(self.schema_name).from_json(self.data)
@@ -149,7 +166,10 @@ def log_file(path: Path | str) -> Path:
 
 
 def summarize(path: Path | str) -> LogSummary:
-    """Summarise a log; never raises on truncation (see :attr:`LogSummary.complete`).
+    """Summarise a log; never raises on damage (see :attr:`LogSummary.complete`).
+
+    The summary section is used only when the file's CRCs cover every byte and hold;
+    otherwise every record is read (and every chunk's CRC checked) to find the damage.
 
     :raises LogError: the file is missing or not MCAP at all.
     """
@@ -157,14 +177,16 @@ def summarize(path: Path | str) -> LogSummary:
     with _open(path) as stream:
         check_magic(path, stream)
         size = path.stat().st_size
-        try:
-            if _ends_with_magic(stream):
-                reader = make_reader(stream)
-                summary = reader.get_summary()
-                if summary is not None and summary.statistics is not None:
-                    return _from_summary(path, size, reader, summary)
-        except _READ_ERRORS:
-            pass  # no usable summary section: fall back to a scan
+        if _ends_with_magic(stream):
+            problems, covered = verify_finalised(stream, size)
+            if covered and not problems:
+                try:
+                    reader = make_reader(stream)
+                    summary = reader.get_summary()
+                    if summary is not None and summary.statistics is not None:
+                        return _from_summary(path, size, reader, summary)
+                except _READ_ERRORS:
+                    pass  # no usable summary section: fall back to a scan
         stream.seek(0)
         return _scan(path, size, stream)
 
@@ -214,7 +236,9 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
                 schema.encoding if schema else "",
                 record.message_encoding,
             )
-        elif isinstance(record, Message) and record.channel_id in topics:
+        elif isinstance(record, Message) and record.channel_id not in topics:
+            scanner.state.orphan_messages += 1
+        elif isinstance(record, Message):
             topic = topics[record.channel_id]
             topic.count += 1
             topic.first_ns = record.log_time if topic.first_ns is None else min(topic.first_ns, record.log_time)
@@ -225,9 +249,10 @@ def _scan(path: Path, size: int, stream: Any) -> LogSummary:
             attachments.append(record.name)
     state = scanner.state
     lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
-    problem = describe_damage(state, max(lasts) if lasts else None) if state.problems or not state.complete else None
+    damaged = bool(state.problems or state.orphan_messages)
+    problem = describe_damage(state, max(lasts) if lasts else None) if damaged or not state.complete else None
     return LogSummary(
-        str(path), size, list(topics.values()), complete=state.complete and not state.problems,
+        str(path), size, list(topics.values()), complete=state.complete and not damaged,
         problem=problem, metadata=metadata, attachments=attachments,
         salvaged_messages=state.salvaged_messages,
     )
@@ -237,12 +262,16 @@ def describe_damage(state: ScanState, last_ns: int | None = None) -> str:
     """What a scan could not read, in words."""
     lost = state.size - state.data_end
     text = "; ".join(state.problems) if state.problems else "no footer"
+    if state.skipped_bytes:
+        text += f"; {state.skipped_bytes} bytes inside the file could not be read"
     if lost > 0 and not state.data_ended:
         text += f"; {lost} of {state.size} bytes ({100 * lost / max(state.size, 1):.1f} %) could not be read"
         if last_ns is not None:
             text += f": what was logged after {last_ns / 1e9:.3f} s (log time) is lost"
     if state.salvaged_messages:
         text += f"; {state.salvaged_messages} messages recovered from the incomplete chunk"
+    if state.orphan_messages:
+        text += f"; {state.orphan_messages} messages dropped: their channel was defined in data that was lost"
     return text
 
 
@@ -255,6 +284,16 @@ def read_messages(
     :param strict: raise :class:`LogError` after the last readable message of a damaged
         or unfinished file; when False, stop quietly there.
     """
+    for message in read_messages_and_gaps(path, topics, strict):
+        if message is not None:
+            yield message
+
+
+def read_messages_and_gaps(
+    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True
+) -> Iterator[LoggedMessage | None]:
+    """:func:`read_messages`, with ``None`` where damage made the scan lose or step over
+    part of the file: what was written around it may be incomplete."""
     path = Path(path)
     wanted = set(topics) if topics is not None else None
     with _open(path) as stream:
@@ -263,14 +302,21 @@ def read_messages(
         schemas: dict[int, Schema] = {}
         channels: dict[int, Channel] = {}
         data_ended = False
+        damage = 0
         for record in scanner.records():
+            if len(scanner.state.problems) != damage:
+                damage = len(scanner.state.problems)
+                yield None
             if isinstance(record, Schema):
                 schemas[record.id] = record
             elif isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message):
                 channel = channels.get(record.channel_id)
-                if channel is None or (wanted is not None and channel.topic not in wanted):
+                if channel is None:
+                    scanner.state.orphan_messages += 1
+                    continue
+                if wanted is not None and channel.topic not in wanted:
                     continue
                 schema = schemas.get(channel.schema_id)
                 yield LoggedMessage(
@@ -288,7 +334,9 @@ def read_messages(
                 data_ended = True
                 break
         state = scanner.state
-        if strict and (state.problems or not data_ended):
+        if len(state.problems) != damage:
+            yield None
+        if strict and (state.problems or not data_ended or state.orphan_messages):
             raise LogError(f"{path}: {describe_damage(state)}")
 
 
@@ -307,3 +355,18 @@ def read_attachment(path: Path | str, name: str) -> bytes:
         if scanner.state.problems:
             raise LogError(f"{path}: no attachment {name!r} in the readable part ({describe_damage(scanner.state)})")
     raise LogError(f"{path}: the log has no attachment {name!r}")
+
+
+RECIPE_ATTACHMENT = "recipe.yaml"
+
+
+def embedded_recipe_text(path: Path | str) -> str:
+    """The recipe a log embeds (attachment ``recipe.yaml``), as text.
+
+    :raises LogError: the log has no such attachment, or it is not UTF-8 text.
+    """
+    data = read_attachment(path, RECIPE_ATTACHMENT)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise LogError(f"{path}: the {RECIPE_ATTACHMENT} attachment is not UTF-8 text (byte {exc.start})") from None

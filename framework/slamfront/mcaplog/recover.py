@@ -9,17 +9,19 @@ lost, since the run's own last line is gone with the end of the file.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
-from slamfront.errors import LogError
+from slamfront.errors import LogError, SlamfrontError
 from slamfront.mcaplog import foxglove
 from slamfront.mcaplog.reader import check_magic, describe_damage
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.topics import LOG_TOPIC
 from slamfront.mcaplog.writer import RunLogWriter
+from slamfront.outputs import make_folder, refuse_overwrite
 
 
 @dataclass
@@ -40,14 +42,32 @@ class Recovery:
 def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_size: int = 1 << 20) -> Recovery:
     """Copy everything readable from ``source`` into a new, finalised log at ``target``.
 
-    :raises LogError: ``source`` is missing or not an MCAP file, or ``target`` is ``source``.
+    The new log is written beside ``target`` and renamed onto it at the end, so a
+    recovery that fails leaves no half file, and ``target`` is replaced only by a whole one.
+
+    :raises LogError: ``source`` is missing or not an MCAP file, or ``target`` is
+        ``source`` (compared as files on disk: hard links and bind mounts included).
     """
     source, target = Path(source), Path(target)
     if not source.is_file():
         raise LogError(f"{source}: no such log file")
-    if target.exists() and target.resolve() == source.resolve():
-        raise LogError(f"{target}: recover writes a new file; choose another -o path than the damaged log")
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        refuse_overwrite(target, [source], "recover writes a new file; choose another -o path than the damaged log")
+    except SlamfrontError as exc:
+        raise LogError(str(exc)) from None
+    make_folder(target.parent, "folder of the recovered log")
+    partial = target.with_name(f".{target.name}.partial-{os.getpid()}")
+    try:
+        recovery = _copy_readable(source, partial, target, compression, chunk_size)
+        os.replace(partial, target)
+    except OSError as exc:
+        raise LogError(f"{target}: cannot write the recovered log: {exc.strerror or exc}") from None
+    finally:
+        partial.unlink(missing_ok=True)
+    return recovery
+
+
+def _copy_readable(source: Path, partial: Path, target: Path, compression: str, chunk_size: int) -> Recovery:
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     counts = {"messages": 0, "metadata": 0, "attachments": 0}
@@ -56,13 +76,15 @@ def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_siz
     with open(source, "rb") as stream:
         check_magic(source, stream)
         scanner = RecordScanner(stream, source.stat().st_size)
-        with RunLogWriter(target, compression, chunk_size, library="slamfront recover") as log:
+        with RunLogWriter(partial, compression, chunk_size, library="slamfront recover") as log:
             for record in scanner.records():
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel):
                     channels[record.id] = record
-                elif isinstance(record, Message) and record.channel_id in channels:
+                elif isinstance(record, Message) and record.channel_id not in channels:
+                    scanner.state.orphan_messages += 1
+                elif isinstance(record, Message):
                     channel = channels[record.channel_id]
                     schema = schemas.get(channel.schema_id)
                     log.write_raw(
@@ -87,7 +109,7 @@ def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_siz
                     )
                     counts["attachments"] += 1
             state = scanner.state
-            complete = state.complete and not state.problems
+            complete = state.complete and not state.problems and not state.orphan_messages
             problem = None if complete else describe_damage(state, last_time or None)
             if not complete:
                 ended = "" if state.data_ended else "; how the run ended was not recorded"

@@ -24,6 +24,7 @@ from google.protobuf.message import DecodeError
 from slamfront.errors import LogError
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.messages import message_class
+from slamfront.text import shorten
 
 
 @cache
@@ -94,8 +95,8 @@ def _check(message: Any, decoder: Any) -> str | None:
     if message.message_encoding == "json":
         try:
             decoded = decoder.from_json(message.data)
-        except (ValueError, TypeError, KeyError) as exc:
-            return f"does not decode as {decoder.schema_name}: {exc}"
+        except (ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError) as exc:
+            return f"does not decode as {decoder.schema_name}: {type(exc).__name__}: {shorten(str(exc), 160)}"
         if decoded.to_json() != message.data:
             return f"does not round-trip bit-exactly through {decoder.schema_name}"
         return None

@@ -17,7 +17,7 @@ import contextlib
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
@@ -63,8 +63,12 @@ class RunLogWriter:
         except OSError as exc:
             raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
         self._critical = critical
-        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression])
-        with self._critical():
+        self._failed = False
+        # data CRCs: readers can check every byte of the data section without opening a chunk
+        self._writer = Writer(
+            self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
+        )
+        with self._changing():
             self._writer.start(profile=PROFILE, library=library)
         self._channels: dict[str, tuple[int, str]] = {}
         self._schemas: dict[tuple[str, str, bytes], int] = {}
@@ -127,16 +131,37 @@ class RunLogWriter:
         if self._sync_seconds is not None and time.monotonic() - self._last_sync >= self._sync_seconds:
             self._sync()
 
+    @property
+    def failed(self) -> bool:
+        """A write failed (a full disk, say): the file stays as it is on disk, unfinalised."""
+        return self._failed
+
     def _check_open(self) -> None:
         if self._closed:
             raise LogError(f"{self.path}: the log is already closed")
+        if self._failed:
+            raise LogError(f"{self.path}: the log cannot be written any more (an earlier write failed)")
+
+    @contextlib.contextmanager
+    def _changing(self) -> Iterator[None]:
+        """A change to the file: not cut in two by a signal; a failed write (a full disk,
+        a file-size limit) is the user's problem to fix, said in one line."""
+        with self._critical():
+            try:
+                yield
+            except OSError as exc:
+                self._failed = True
+                raise LogError(
+                    f"{self.path}: cannot write the log: {exc.strerror or exc} (what reached the disk can be read "
+                    "with `slamfront recover`)"
+                ) from None
 
     def write(self, topic: str, message: Message, log_time_ns: int) -> None:
         """Write a slamfront message (JSON) on ``topic``."""
         self._check_open()
         data = message.to_json()
         schema = self._json_schema(type(message))
-        with self._critical():
+        with self._changing():
             channel = self._channel(topic, message.schema_name, "jsonschema", schema, "json")
             self._add(channel, log_time_ns, data)
 
@@ -145,7 +170,7 @@ class RunLogWriter:
         self._check_open()
         name, schema = self._protobuf_schema(message)
         data = message.SerializeToString()
-        with self._critical():
+        with self._changing():
             channel = self._channel(topic, name, "protobuf", schema, "protobuf")
             self._add(channel, log_time_ns, data)
 
@@ -162,7 +187,7 @@ class RunLogWriter:
     ) -> None:
         """Copy a message read from another log unchanged (bytes, schema and times)."""
         self._check_open()
-        with self._critical():
+        with self._changing():
             channel = self._channel(topic, schema_name, schema_encoding, schema_data, message_encoding)
             self._add(channel, log_time_ns, data, publish_time_ns)
 
@@ -176,7 +201,7 @@ class RunLogWriter:
     def add_metadata(self, name: str, values: dict[str, str]) -> None:
         """A metadata record (string key/values), e.g. the run's versions."""
         self._check_open()
-        with self._critical():
+        with self._changing():
             self._writer.add_metadata(name, {k: str(v) for k, v in values.items()})
 
     def add_attachment(
@@ -188,7 +213,7 @@ class RunLogWriter:
         """
         self._check_open()
         created = log_time_ns if create_time_ns is None else create_time_ns
-        with self._critical():
+        with self._changing():
             self._writer.add_attachment(
                 create_time=created, log_time=log_time_ns, name=name, media_type=media_type, data=data
             )
@@ -204,7 +229,7 @@ class RunLogWriter:
     def sync(self) -> None:
         """Put everything written so far on disk now (closes the current chunk)."""
         self._check_open()
-        with self._critical():
+        with self._changing():
             self._sync()
 
     # -- lifetime ------------------------------------------------------------------------
@@ -214,7 +239,11 @@ class RunLogWriter:
         if self._closed:
             return
         self._closed = True
-        with self._critical():
+        if self._failed:  # finishing would only fail again; keep what is on disk as it is
+            with contextlib.suppress(OSError):
+                self._stream.close()
+            return
+        with self._changing():
             try:
                 self._writer.finish()
                 self._stream.flush()

@@ -18,8 +18,6 @@ from slamfront.core.graph_files import RECORDS, GraphFormat, ParsedGraph, format
 from slamfront.core.posegraph import PoseGraph, compose_initial_poses
 from slamfront.errors import DataError
 from slamfront.formats import poses as pose_files
-from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import FrameInfo, PoseGraphState, RelativePose
 
 
 def read_lines(path: Path) -> list[str]:
@@ -73,6 +71,9 @@ def graph_from_log(path: Path) -> LoadedGraph:
 
     :raises LogError: not a readable log; DataError: no back-end graph in it.
     """
+    from slamfront.mcaplog.reader import read_messages, summarize  # logs only: graph files do without
+    from slamfront.messages import FrameInfo, PoseGraphState
+
     summary = summarize(path)
     topics = [t.topic for t in summary.topics if t.schema_name == PoseGraphState.schema_name]
     if not topics:
@@ -275,6 +276,9 @@ def read_odometry(path: Path) -> OdometryTable:
     """
     path = Path(path)
     if path.suffix == ".mcap":
+        from slamfront.mcaplog.reader import read_messages, summarize
+        from slamfront.messages import RelativePose
+
         summary = summarize(path)
         topics = [t.topic for t in summary.topics if t.schema_name == RelativePose.schema_name]
         if not topics:

@@ -21,45 +21,18 @@ from typing import Any, Literal
 import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from tqdm import tqdm
 
 from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, check_connected, initial_poses, spanning_tree
 from slamfront.errors import DataError
-
-KernelName = Literal["none", "huber", "cauchy", "dcs", "geman_mcclure", "tukey", "welsch", "gnc"]
+from slamfront.posegraph.kernels import KERNELS, KernelName
 
 _ROTATION_FIRST = np.array([3, 4, 5, 0, 1, 2])
 """GTSAM's Pose3 tangent is (rx, ry, rz, x, y, z); graphs store translation first."""
 
 _PRIOR_SIGMA = 1e-4
 """Gauge prior on the first vertex: tight, but loose enough to keep the system well conditioned."""
-
-
-@dataclass(frozen=True)
-class Kernel:
-    """A robust kernel GTSAM offers: what it does, its usual parameter, how to build it."""
-
-    summary: str
-    default_parameter: float
-    build: Callable[[float], Any]
-
-
-KERNELS: Mapping[str, Kernel] = {
-    "huber": Kernel("quadratic up to k, then linear", 1.345, lambda k: gtsam.noiseModel.mEstimator.Huber.Create(k)),
-    "cauchy": Kernel("log(1 + (r/c)^2)", 1.0, lambda c: gtsam.noiseModel.mEstimator.Cauchy.Create(c)),
-    "dcs": Kernel(
-        "dynamic covariance scaling (Agarwal et al., ICRA 2013), phi", 1.0,
-        lambda phi: gtsam.noiseModel.mEstimator.DCS.Create(phi),
-    ),
-    "geman_mcclure": Kernel(
-        "Geman-McClure, c", 1.0, lambda c: gtsam.noiseModel.mEstimator.GemanMcClure.Create(c)
-    ),
-    "tukey": Kernel("Tukey biweight (zero weight beyond c)", 4.685, lambda c: gtsam.noiseModel.mEstimator.Tukey.Create(c)),
-    "welsch": Kernel("Welsch (exponential)", 2.9846, lambda c: gtsam.noiseModel.mEstimator.Welsch.Create(c)),
-}
-"""M-estimator kernels by name; ``none`` (least squares) and ``gnc`` are handled apart."""
 
 
 class SolverOptions(BaseModel):
@@ -485,6 +458,8 @@ def _isam2_run(graph: PoseGraph, options: SolverOptions, factorization: Literal[
     session = Isam2Session(graph.dim, options, factorization)
     session.name = graph.name
     inverse_measurements = geometry.invert(graph.measurements)
+    from tqdm import tqdm  # only the incremental mode shows progress
+
     progress = tqdm(order.tolist(), desc="iSAM2", unit="vertex", leave=False, disable=None)  # shown on a terminal
     for when, vertex in enumerate(progress):
         key = int(graph.ids[vertex])

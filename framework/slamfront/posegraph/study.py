@@ -12,33 +12,20 @@ iterations and time.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import PoseGraph, random_false_closures
+from slamfront.outputs import make_folder
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_text
+from slamfront.posegraph.kernels import METHODS, RATES
 from slamfront.posegraph.solver import SolverOptions, objective, optimize
 from slamfront.report.plots import _pyplot
-
-METHODS: Mapping[str, dict[str, Any]] = {
-    "none": {"kernel": "none"},
-    "huber": {"kernel": "huber"},
-    "cauchy": {"kernel": "cauchy"},
-    "dcs": {"kernel": "dcs"},
-    "geman_mcclure": {"kernel": "geman_mcclure"},
-    "gnc": {"kernel": "gnc", "gnc_warm_start": "none"},
-    "gnc_dcs_start": {"kernel": "gnc", "gnc_warm_start": "dcs"},
-}
-"""Study methods by label: solver options (kernels at their default parameters). ``gnc``
-starts from the odometry; ``gnc_dcs_start`` from the DCS solution."""
-
-RATES = (0.0, 0.1, 0.2, 0.5)
 
 
 @dataclass
@@ -187,7 +174,7 @@ def plot(rows: Sequence[StudyRow], path: Path) -> Path:
 
 def write(rows: Sequence[StudyRow], out_dir: Path, plots: bool = True) -> list[Path]:
     """``outliers.md`` (table), ``outliers.json`` (rows) and ``outliers.png`` in ``out_dir``."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_folder(out_dir)
     files = [
         write_text(out_dir / "outliers.md", "# Outlier study\n\n" + table(rows) + "\n"),
         write_text(out_dir / "outliers.json", json.dumps([asdict(r) for r in rows], indent=1) + "\n"),

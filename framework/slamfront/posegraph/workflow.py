@@ -15,10 +15,11 @@ import numpy as np
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.graph_files import GraphFormat
+from slamfront.outputs import make_folder
 from slamfront.posegraph import report
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_text, write_tum
 from slamfront.posegraph.solver import OptimizationResult, SolverOptions, optimize
-from slamfront.runtime import write_json_atomically
+from slamfront.report.metrics_file import write_json_atomically
 
 SHOWN = (
     "graph", "format", "dim", "n_vertices", "n_edges", "n_loop_closures", "mode", "kernel", "kernel_parameter",
@@ -74,7 +75,7 @@ def optimize_file(
         metrics["ate_rmse_after_m"] = ate_rmse(result.poses[:, :d, d], truth)
         metrics["ground_truth"] = str(ground_truth) if ground_truth is not None else "from the log"
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_folder(out_dir)
     files = [
         write_g2o(out_dir / "optimized.g2o", graph, result.poses),
         write_tum(out_dir / "trajectory.tum", graph, result.poses),

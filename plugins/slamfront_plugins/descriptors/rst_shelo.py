@@ -43,6 +43,7 @@ at these sizes (hence ``auto``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Literal
 
@@ -112,15 +113,15 @@ def cell_orientations(
     return theta, magnitude / area
 
 
-def block_histograms(
-    theta: np.ndarray, weight: np.ndarray, block_x: int, block_y: int, bins: int, spatial_soft: bool
-) -> np.ndarray:
-    """(blocks_y, blocks_x, bins) orientation histograms of the cells (see module docstring)."""
-    cells_y, cells_x = theta.shape
-    blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
-    position = theta / np.pi * bins - 0.5  # bin centres at (b + 0.5) * pi / bins
-    low_bin = np.floor(position).astype(int)
-    bin_frac = position - low_bin
+@functools.lru_cache(maxsize=16)
+def _block_geometry(
+    cells_y: int, cells_x: int, block_y: int, block_x: int, bins: int, spatial_soft: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`block_histograms` needs that depends on the grid only, not on the image:
+    for the 8 (row, column, bin) corners of every cell's vote, in the order the votes are
+    added, the flat histogram index of its block, its row and column weights and the
+    bin step (0 or 1). Shapes (8, cells_y, cells_x); read-only."""
+    blocks_x = cells_x // block_x
     if spatial_soft:  # cell centre in block units, block centres at integers
         row = (np.arange(cells_y) + 0.5) / block_y - 0.5
         col = (np.arange(cells_x) + 0.5) / block_x - 0.5
@@ -130,11 +131,41 @@ def block_histograms(
     row_grid, col_grid = np.meshgrid(row, col, indexing="ij")
     row0, col0 = np.floor(row_grid).astype(int), np.floor(col_grid).astype(int)
     row_frac, col_frac = row_grid - row0, col_grid - col0
-    padded = np.zeros((blocks_y + 2, blocks_x + 2, bins))  # one block of margin each side
+    blocks, row_weights, col_weights, bin_steps = [], [], [], []
     for dr, wr in ((0, 1 - row_frac), (1, row_frac)):
         for dc, wc in ((0, 1 - col_frac), (1, col_frac)):
-            for db, wb in ((0, 1 - bin_frac), (1, bin_frac)):
-                np.add.at(padded, (row0 + dr + 1, col0 + dc + 1, (low_bin + db) % bins), weight * wr * wc * wb)
+            for db in (0, 1):
+                blocks.append(((row0 + dr + 1) * (blocks_x + 2) + col0 + dc + 1) * bins)
+                row_weights.append(wr)
+                col_weights.append(wc)
+                bin_steps.append(np.full(row0.shape, db))
+    arrays = tuple(np.stack(a) for a in (blocks, row_weights, col_weights, bin_steps))
+    for array in arrays:
+        array.flags.writeable = False
+    return arrays  # type: ignore[return-value]
+
+
+def block_histograms(
+    theta: np.ndarray, weight: np.ndarray, block_x: int, block_y: int, bins: int, spatial_soft: bool
+) -> np.ndarray:
+    """(blocks_y, blocks_x, bins) orientation histograms of the cells (see module docstring).
+
+    Each cell's vote is split over 2 rows x 2 columns of blocks x 2 bins; the eight
+    shares of every cell go into one ``np.bincount`` in the order (row, column, bin
+    corner, then cell) in which they are added, so the sums are the same bits as
+    adding them one corner at a time.
+    """
+    cells_y, cells_x = theta.shape
+    blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
+    blocks, row_weights, col_weights, bin_steps = _block_geometry(cells_y, cells_x, block_y, block_x, bins, spatial_soft)
+    position = theta / np.pi * bins - 0.5  # bin centres at (b + 0.5) * pi / bins
+    low_bin = np.floor(position).astype(int)
+    bin_frac = position - low_bin
+    bin_weights = np.where(bin_steps == 1, bin_frac, 1 - bin_frac)
+    targets = blocks + (low_bin + bin_steps) % bins
+    votes = weight * row_weights * col_weights * bin_weights
+    size = (blocks_y + 2) * (blocks_x + 2) * bins
+    padded = np.bincount(targets.ravel(), votes.ravel(), size).reshape(blocks_y + 2, blocks_x + 2, bins)
     return padded[1:-1, 1:-1]
 
 

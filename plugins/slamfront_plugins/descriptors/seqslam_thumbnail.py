@@ -10,15 +10,18 @@ from pydantic import Field, model_validator
 
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.core.seqslam import patch_normalise
+from slamfront.core.thumbnail import imresize
 from slamfront.messages import Features
 
 
 class SeqSlamThumbnail(Descriptor):
-    """OpenSeqSLAM's image preprocessing: grey, resize (Lanczos), patch normalisation.
+    """OpenSeqSLAM's image preprocessing: grey, resize (MATLAB's antialiased Lanczos-3), patch normalisation.
 
     Defaults are OpenSeqSLAM 2013's (64x32, patches of 8); Rodrigues 2019 used 32x32.
-    An image already of the target size is not resampled (OpenSeqSLAM reads Nordland's
-    64x32 images as they are). The vector holds the normalised pixel values as uint8,
+    The resize is MATLAB ``imresize(..., 'lanczos3')`` as OpenSeqSLAM calls it, which
+    low-passes before shrinking (:func:`slamfront.core.thumbnail.imresize`). An image
+    already of the target size is not resampled (OpenSeqSLAM reads Nordland's 64x32
+    images as they are). The vector holds the normalised pixel values as uint8,
     compared by mean absolute difference (``l1``).
     """
 
@@ -42,7 +45,7 @@ class SeqSlamThumbnail(Descriptor):
         c = self.config
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         if grey.shape != (c.height, c.width):
-            grey = cv2.resize(grey, (c.width, c.height), interpolation=cv2.INTER_LANCZOS4)
+            grey = imresize(grey, c.height, c.width)
         if c.normalise:
             grey = patch_normalise(grey, c.patch_size)
         return np.ascontiguousarray(grey).ravel()

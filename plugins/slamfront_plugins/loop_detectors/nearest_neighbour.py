@@ -9,7 +9,7 @@ from pydantic import Field
 
 from slamfront import LoopDetector, Plugin, PluginConfig, StageInputs
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import to_one
+from slamfront.core.distances import smallest, to_one
 from slamfront.messages import LoopResult
 from slamfront.plugin import global_features, require_global_descriptor
 
@@ -69,7 +69,7 @@ class NearestNeighbour(LoopDetector):
         self._n_searches += 1
         self._n_distances += usable
         distances = to_one(vector, self._vectors.view[:usable], self._metric)  # type: ignore[arg-type]
-        order = np.argsort(distances, kind="stable")
+        order = smallest(distances, self.config.candidates)  # the stable sort's first ranks, without sorting all
         best = int(order[0])
         far = np.abs(np.arange(usable) - best) > self.config.uniqueness_window
         second = float(distances[far].min()) if far.any() else float(distances[best]) * 2 + 1e-9

@@ -17,12 +17,13 @@ from pydantic import Field, model_validator
 
 from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
+from slamfront.core.distances import smallest
 from slamfront.core.seqslam import (
     best_match,
     difference_columns,
     enhance_contrast,
     enhanced_lower_bound,
-    sequence_scores,
+    sequence_scores_block,
     trajectory_offsets,
 )
 from slamfront.messages import Features, LoopResult
@@ -159,7 +160,8 @@ class _SequenceDetector(LoopDetector):
         middle = self._pending.popleft()
         columns = np.stack([c for _, c, _ in self._window], axis=1)
         shifted = columns.astype(np.float64) - enhanced_lower_bound(self.config.contrast_window)
-        return [self._answer(middle, shifted, [r for _, _, r in self._window])]
+        starts = self._start_rows([r for _, _, r in self._window], len(shifted))
+        return [self._answer(middle, sequence_scores_block(shifted, self._offsets, [starts])[0])]
 
     def finish(self) -> Sequence[LoopResult]:
         if self.config.mode == "online":
@@ -193,24 +195,22 @@ class _SequenceDetector(LoopDetector):
         for k, (start, stop) in enumerate(blocks):
             columns, rows = kept.pop(k, None) or self._columns(queries[start - half : stop + half])
             shifted = columns.astype(np.float64) - offset  # once per block, not once per window
-            for n in range(start, stop):
-                lo = n - start
-                results.append(self._answer(frames[n], shifted[:, lo : lo + c.ds + 1], rows[lo : lo + c.ds + 1]))
+            starts = [self._start_rows(rows[lo : lo + c.ds + 1], len(shifted)) for lo in range(stop - start)]
+            scores = sequence_scores_block(shifted, self._offsets, starts)  # every query of the block at once
+            results += [self._answer(frames[n], scores[n - start]) for n in range(start, stop)]
         results += [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in frames[len(frames) - half :]]
         self._query_vectors.clear()
         return results
 
-    def _answer(self, frame: int, shifted: np.ndarray, rows: list[np.ndarray | None]) -> LoopResult:
-        """Match one query from its window of enhanced columns (R, ds + 1), in float64 and
-        shifted by the score offset so that every score is >= 0."""
+    def _answer(self, frame: int, scores: np.ndarray) -> LoopResult:
+        """Match one query from its (R,) best trajectory costs per start row (computed on
+        its window of enhanced columns in float64, shifted so that every score is >= 0)."""
         self._n_searches += 1
-        starts = self._start_rows(rows, len(shifted))
-        scores = sequence_scores(shifted, self._offsets, starts)
         found = best_match(scores, self.config.ds, self.config.rwindow)
         if found is None:
             return self._no_answer(frame, "no trajectory stays inside the reference")
         confidence = float(np.clip(1.0 - found.ratio, 0.0, 1.0))
-        ranked = np.argsort(scores, kind="stable")[: self.config.candidates]
+        ranked = smallest(scores, self.config.candidates)
         ranked = ranked[np.isfinite(scores[ranked])]
         if len(self._reference_index) != len(self._reference_frames):
             self._reference_index = np.asarray(self._reference_frames, dtype=np.int64)

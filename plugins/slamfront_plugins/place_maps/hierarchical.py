@@ -43,7 +43,7 @@ from pydantic import Field, model_validator
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
-from slamfront.core.vptree import VPTree, brute_force_knn
+from slamfront.core.vptree import VPTREE_MIN_PLACES, VPTree, brute_force_knn, vptree_pays
 from slamfront.frame import Traversal
 from slamfront.messages import Message, PlaceAssignment
 from slamfront.plugin import global_features, require_global_descriptor
@@ -164,9 +164,12 @@ class HierarchicalPlaceMap(PlaceMap):
             default_factory=lambda: ["reference"],
             description="traversals whose places join the map when created (the rest wait for commit())",
         )
-        search: Literal["vptree", "brute_force"] = Field(
-            "vptree", description="how representatives are searched; both are exact and give the same answer "
-            "(the VP-tree of Rodrigues 2019 pays off for low intrinsic dimension, see benchmarks/results/vptree.md)",
+        search: Literal["auto", "vptree", "brute_force"] = Field(
+            "auto", description="how representatives are searched; all are exact and give the same answer. "
+            "The VP-tree of Rodrigues 2019 pays off only for large maps of low intrinsic dimension "
+            "(benchmarks/results/vptree.md); auto searches by brute force and, when the map reaches 10,000 "
+            "places (and each doubling after), moves to a VP-tree if one computes at most 10 % of the distances "
+            "on them",
         )
         leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
 
@@ -196,6 +199,7 @@ class HierarchicalPlaceMap(PlaceMap):
         self._n_frames = 0
         self._distance_calls = 0  # level-1 search distances (brute force, or the VP-tree's count)
         self._calibrated_on = 0  # frames the automatic nu was chosen from
+        self._next_search_check = VPTREE_MIN_PLACES
         self.edges: set[tuple[int, int, str]] = set()
         """Map edges ``(position a, position b, kind)`` with a < b; kind ``route`` or ``loop``."""
 
@@ -297,6 +301,8 @@ class HierarchicalPlaceMap(PlaceMap):
         self._representatives.append(self.representative(place_id))  # type: ignore[union-attr]
         if self._tree is not None:
             self._tree.add(self.representative(place_id))
+        elif self.config.search == "auto":
+            self._maybe_grow_tree()
         return position
 
     def link(self, position_a: int, position_b: int) -> None:
@@ -387,6 +393,15 @@ class HierarchicalPlaceMap(PlaceMap):
     def search_distances(self) -> int:
         """Descriptor distances computed by :meth:`nearest` so far (what a detector's place search cost)."""
         return self._distance_calls
+
+    def _maybe_grow_tree(self) -> None:
+        """``search: auto``: at 10,000 map places and each doubling, keep a VP-tree over the
+        representatives if it computes few enough distances on them (:func:`vptree_pays`)."""
+        n = len(self._representatives)  # type: ignore[arg-type]
+        if n < self._next_search_check or self._metric == "cosine":
+            return
+        self._next_search_check = 2 * n
+        self._tree = vptree_pays(self._representatives.view, self._metric, self.config.leaf_size)  # type: ignore[union-attr,arg-type]
 
     def statistics(self) -> dict[str, float | int]:
         counts: dict[str, int] = {}

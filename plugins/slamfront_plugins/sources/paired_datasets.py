@@ -17,6 +17,7 @@ from pydantic import Field
 from slamfront import DataError
 from slamfront.data import DataPath, data_root, download_root
 from slamfront.datasets import DatasetDownload
+from slamfront.formats.npy import load_npy
 from slamfront_plugins.sources.paired import PairedLayout, PairedTraversals, images_in
 
 NORDLAND_COMMIT = "ea9ca6f6e5f7c5181357c5f649f0a3e0a6a6a8d0"
@@ -168,7 +169,7 @@ class VprBench(PairedTraversals):
 
     The ground truth file is a NumPy object array with one row per query,
     ``[query index, [reference indices]]``, indices into the numerically sorted image
-    lists (it is a pickle: load only files you trust). A query missing from it, or with
+    lists (a pickle, read by an unpickler that builds arrays and nothing else). A query missing from it, or with
     an empty list, has no true match. ``tolerance`` widens each listed reference by
     that many frames (default 0: the file already lists every correct reference).
     """
@@ -185,12 +186,9 @@ class VprBench(PairedTraversals):
         reference = images_in(root / "ref")
         query = images_in(root / "query")
         path = root / self.config.ground_truth
-        try:
-            table = np.load(path, allow_pickle=True)
-        except FileNotFoundError:
-            raise DataError(f"{path}: no such ground-truth file") from None
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{path}: not a NumPy ground-truth file ({exc})") from exc
+        if not path.is_file():
+            raise DataError(f"{path}: no such ground-truth file")
+        table = load_npy(path)  # an object array, rebuilt without running the pickle's code
         places = [np.empty(0, dtype=np.float64) for _ in query]
         if table.ndim != 2 or table.shape[1] != 2:
             raise DataError(f"{path}: expected rows of [query index, [reference indices]], got shape {table.shape}")

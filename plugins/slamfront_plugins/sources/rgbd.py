@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
-from slamfront.data import DataPath
+from slamfront.data import DataPath, path_inside
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
@@ -165,10 +165,12 @@ class RgbdFolder(RgbdSequence):
             raise DataError(f"{root}: no such sequence folder")
         if self.config.match_file is not None:
             pairs = []
-            for number, fields in numbered_fields(root / self.config.match_file):
+            match_file = root / self.config.match_file
+            for number, fields in numbered_fields(match_file):
                 if len(fields) != 2:
-                    raise DataError(f"{root / self.config.match_file}:{number}: expected 'depth color'")
-                pairs.append((root / fields[1], root / fields[0]))
+                    raise DataError(f"{match_file}:{number}: expected 'depth color'")
+                depth, color = (path_inside(root, name, f"{match_file}:{number}") for name in fields)
+                pairs.append((color, depth))
             return pairs
         colors = list_images(root / self.config.color_dir)
         depths = list_images(root / self.config.depth_dir)
@@ -248,7 +250,8 @@ class TumRgbd(RgbdSequence):
             pose = pose_of.get(k)
             if self.config.require_pose and pose is None:
                 continue
-            color, depth = root / rgb_names[i], root / depth_names[j]
+            color = path_inside(root, rgb_names[i], f"{root / 'rgb.txt'}:{rgb_lines[i]}")
+            depth = path_inside(root, depth_names[j], f"{root / 'depth.txt'}")
             if not color.exists():
                 raise DataError(f"{root / 'rgb.txt'}:{rgb_lines[i]}: {color} does not exist")
             entries.append(RgbdEntry(float(rgb_stamps[i]), color, depth, pose))

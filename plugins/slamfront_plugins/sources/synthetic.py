@@ -8,11 +8,12 @@ from functools import cached_property
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.frame import Traversal
+from slamfront.limits import check_limit
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
 
 logger = logging.getLogger(__name__)
@@ -58,6 +59,33 @@ class SyntheticWorld(Source):
             False, description="give the query traversal (paired) or the whole stream in a random order (kidnapped robot)"
         )
         shuffle_seed: int = Field(0, description="seed of the shuffled order")
+
+        # sizes a recipe (or a log's recipe) can make absurd, checked before anything is allocated
+        @field_validator("frames_per_traversal")
+        @classmethod
+        def _frames_bounded(cls, value: int, info: ValidationInfo) -> int:
+            passes = 2 if info.data.get("mode") == "paired" else 1
+            check_limit("frames", value * passes, "the number of frames")
+            return value
+
+        @field_validator("laps")
+        @classmethod
+        def _laps_bounded(cls, value: int, info: ValidationInfo) -> int:
+            if info.data.get("mode") == "stream":
+                check_limit("frames", value * info.data.get("frames_per_traversal", 1), "frames_per_traversal x laps")
+            return value
+
+        @field_validator("route_length_m")
+        @classmethod
+        def _route_bounded(cls, value: float) -> float:
+            check_limit("world_length_m", value, "the route length in metres")
+            return value
+
+        @field_validator("image_height")
+        @classmethod
+        def _image_bounded(cls, value: int, info: ValidationInfo) -> int:
+            check_limit("image_pixels", value * info.data.get("image_width", 1), "image_width x image_height")
+            return value
 
         @model_validator(mode="after")
         def _lap_illuminations(self) -> SyntheticWorld.Config:

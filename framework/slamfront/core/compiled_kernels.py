@@ -1,0 +1,149 @@
+"""The numba kernels behind :mod:`slamfront.core.kernels` (see there for what each
+reproduces); module-level functions, so numba caches their machine code on disk."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from slamfront.core.kernels import PAIRWISE_BLOCK
+
+jit = numba.njit(nogil=True, cache=True, error_model="numpy")
+
+
+@jit
+def block_sum(values, start, n):  # type: ignore[no-untyped-def]
+    # NumPy's pairwise summation of n <= 128 values (numpy/_core/src/umath/loops_utils.h.src)
+    if n < 8:
+        res = values.dtype.type(-0.0)
+        for i in range(start, start + n):
+            res += values[i]
+        return res
+    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    i = 8
+    while i < n - (n % 8):
+        j = start + i
+        r0 += values[j]
+        r1 += values[j + 1]
+        r2 += values[j + 2]
+        r3 += values[j + 3]
+        r4 += values[j + 4]
+        r5 += values[j + 5]
+        r6 += values[j + 6]
+        r7 += values[j + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += values[start + i]
+        i += 1
+    return res
+
+
+@jit
+def pairwise_sum(values, start, n, frames, partial):  # type: ignore[no-untyped-def]
+    # NumPy's pairwise summation of any n: blocks of <= 128 combined as
+    # sum(a, n) = sum(a, h) + sum(a + h, n - h), h = n / 2 rounded down to a multiple of 8.
+    # The recursion runs on an explicit stack (numba cannot cache recursive functions):
+    # frames (3, depth) int64 holds (start, length, stage) per level, partial the left sums.
+    if n <= PAIRWISE_BLOCK:
+        return block_sum(values, start, n)
+    top = 0
+    frames[0, 0], frames[1, 0], frames[2, 0] = start, n, 0
+    result = values.dtype.type(0.0)
+    while top >= 0:
+        s, m = frames[0, top], frames[1, top]
+        if m <= PAIRWISE_BLOCK:
+            result = block_sum(values, s, m)
+            top -= 1
+            continue
+        h = m // 2
+        h -= h % 8
+        stage = frames[2, top]
+        if stage == 0:  # descend into the left half
+            frames[2, top] = 1
+            top += 1
+            frames[0, top], frames[1, top], frames[2, top] = s, h, 0
+        elif stage == 1:  # left done: keep it, descend into the right half
+            partial[top] = result
+            frames[2, top] = 2
+            top += 1
+            frames[0, top], frames[1, top], frames[2, top] = s + h, m - h, 0
+        else:  # both halves done
+            result = partial[top] + result
+            top -= 1
+    return result
+
+
+@jit
+def l1_uint8(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
+    # out[i, j] = sum |a[i] - b[j]| for rows lo..hi of a; exact in int32
+    p = a.shape[1]
+    for i in range(lo, hi):
+        ai = a[i]
+        for j in range(b.shape[0]):
+            bj = b[j]
+            acc = np.int32(0)
+            for k in range(p):
+                x = np.int32(ai[k])
+                y = np.int32(bj[k])
+                acc += x - y if x > y else y - x
+            out[i, j] = acc
+
+@jit
+def l1_float32(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
+    # float32 |a - b| summed in NumPy's pairwise order, bit for bit
+    p = a.shape[1]
+    buffer = np.empty(p, dtype=np.float32)
+    frames = np.empty((3, 64), dtype=np.int64)
+    partial = np.empty(64, dtype=np.float32)
+    for i in range(lo, hi):
+        ai = a[i]
+        for j in range(b.shape[0]):
+            bj = b[j]
+            for k in range(p):
+                buffer[k] = abs(ai[k] - bj[k])
+            out[i, j] = np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+
+@jit
+def sweep(columns, offsets, queries, out, lo, hi):  # type: ignore[no-untyped-def]
+    # columns: (C, R + reach + 1) float64 (rows past R are inf); query n = queries[i]
+    # uses columns n .. n + W - 1; out[n, r] = min over trajectories of the sum
+    # of their W entries added one after the other
+    n_ref = out.shape[1]
+    n_traj, width = offsets.shape
+    cost = np.empty(n_ref, dtype=np.float64)
+    for i in range(lo, hi):
+        n = queries[i]
+        best = out[n]
+        best[:] = np.inf
+        for v in range(n_traj):
+            cost[:] = 0.0
+            for k in range(width):
+                column = columns[n + k]
+                shift = offsets[v, k]
+                for r in range(n_ref):
+                    cost[r] += column[r + shift]
+            for r in range(n_ref):
+                if cost[r] < best[r]:
+                    best[r] = cost[r]
+
+@jit
+def gather(columns, offsets, queries, rows, starts, out, lo, hi):  # type: ignore[no-untyped-def]
+    # as sweep for query queries[i]'s start rows rows[starts[i]:starts[i + 1]] only
+    # (others inf), each trajectory pairwise-summed as NumPy's ``picked.sum(axis=2)``
+    n_traj, width = offsets.shape
+    picked = np.empty(width, dtype=np.float64)
+    frames = np.empty((3, 64), dtype=np.int64)
+    partial = np.empty(64, dtype=np.float64)
+    for i in range(lo, hi):
+        n = queries[i]
+        out[n, :] = np.inf
+        for index in range(starts[i], starts[i + 1]):
+            row = rows[index]
+            best = np.inf
+            for v in range(n_traj):
+                for k in range(width):
+                    picked[k] = columns[n + k, row + offsets[v, k]]
+                best = min(best, 0.0 + pairwise_sum(picked, 0, width, frames, partial))
+            out[n, row] = best
