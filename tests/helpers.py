@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
+from slamfront.formats.poses import Trajectory, write_tum
+from slamfront.frame import Frame
 from slamfront.mcaplog.diff import comparable_bytes
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.scan import RecordScanner
@@ -68,6 +72,27 @@ def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:
         if message.topic.startswith(prefix):
             topics.setdefault(message.topic, []).append(comparable_bytes(message))
     return topics
+
+
+def write_tum_layout(root: Path, frames: Sequence[Frame], depth_scale: float = 5000.0) -> Path:
+    """Write frames as a TUM RGB-D sequence folder: ``rgb/``, ``depth/``, ``rgb.txt``,
+    ``depth.txt`` and ``groundtruth.txt`` (depth 4 ms and poses 1 ms after each image, as
+    the benchmark's files are offset)."""
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb, depth, stamps = ["# color images"], ["# depth maps"], []
+    for i, frame in enumerate(frames):
+        t = 1305031102.0 + i / 30
+        cv2.imwrite(str(root / f"rgb/{t:.6f}.png"), cv2.cvtColor(frame.image, cv2.COLOR_RGB2BGR))
+        raw = np.clip(np.nan_to_num(frame.depth) * depth_scale, 0, 65535).astype(np.uint16)
+        cv2.imwrite(str(root / f"depth/{t + 0.004:.6f}.png"), raw)
+        rgb.append(f"{t:.6f} rgb/{t:.6f}.png")
+        depth.append(f"{t + 0.004:.6f} depth/{t + 0.004:.6f}.png")
+        stamps.append(t + 0.001)
+    (root / "rgb.txt").write_text("\n".join(rgb) + "\n")
+    (root / "depth.txt").write_text("\n".join(depth) + "\n")
+    write_tum(root / "groundtruth.txt", Trajectory(np.array(stamps), np.stack([f.pose for f in frames])))
+    return root
 
 
 # --- Foxglove layouts ----------------------------------------------------------------------

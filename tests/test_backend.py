@@ -236,7 +236,10 @@ def test_synthetic_slam_run_reduces_ate_and_logs_for_foxglove(cli, tmp_path: Pat
     ])
     result = run_pipeline(build_pipeline(recipe, str(path)), str(path), out, progress=False)
     metrics = result.metrics
-    assert metrics["n_loop_constraints_added"] >= 5
+    # 4 since PnP takes correspondences one-to-one (a reference point matched by several
+    # pixels, or two keypoints lifted to one 3-D point, counts once): a 5th loop no longer
+    # reaches its inlier ratio
+    assert metrics["n_loop_constraints_added"] >= 4
     assert metrics["n_loop_constraints_added_false"] == 0
     assert metrics["ate_rmse_after_m"] < 0.5 * metrics["ate_rmse_before_m"]
     assert (out / "backend.png").exists() and "Pose-graph back end" in (out / "report.md").read_text()

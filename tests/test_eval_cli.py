@@ -195,3 +195,36 @@ def test_incompatible_localizer_settings(cli, write_recipe, tmp_path: Path, chan
     raw.update(change)
     line = _one_line_error(*cli("run", write_recipe(raw), "-o", tmp_path / "out", "-q")[::2])
     assert expected in line
+
+
+def test_eval_traj_associates_like_evo_by_default(cli, fr1: tuple[Path, Path]) -> None:
+    """No --max-difference: evo's 0.01 s window, so `evo_ape tum GT EST -a` prints the same ATE."""
+    code, out, err = cli("eval", "traj", *fr1, "--all-intervals")
+    assert code == 0, err
+    assert "associated:   610 pose pairs" in out and "ate_rmse_m = 0.0230707" in out
+    assert "rpe_all_intervals_rmse_m = " in out
+
+
+def test_global_test_hit_rate_is_neutral_about_ties_and_zero_matches() -> None:
+    """Frames with 0 matches are misses, whatever their distance to the target; a tie that
+    straddles the cut counts the share of near frames in it, not the closest ones."""
+    from slamfront.descriptor_eval import near_share
+
+    counts = np.zeros(30, dtype=np.int64)  # nothing matched the target (frame 10) at all
+    assert near_share(counts, 10, 5, 10) == 0.0  # before: the 5 closest frames, "100 %"
+    counts[[9, 11, 25]] = [50, 40, 30]  # two neighbours and one far frame matched
+    assert near_share(counts, 10, 5, 10) == pytest.approx(2 / 5)
+    counts[[12, 28]] = 7  # a tie for the 4th and 5th slots... with one more near frame at 7
+    counts[29] = 7
+    assert near_share(counts, 10, 5, 10) == pytest.approx((2 + 2 * (1 / 3)) / 5)
+    assert near_share(np.array([0, 3]), 0, 5, 10) == 1.0  # one other frame: the slots shrink to 1
+
+
+def test_eval_descriptors_draws_sixteen_targets_by_default(cli, tmp_path: Path, write_recipe) -> None:
+    recipe = write_recipe({"name": "tiny", "description": "x", "source": {"plugin": "synthetic", "params": {
+        "mode": "stream", "laps": 1, "frames_per_traversal": 20, "route_length_m": 60,
+        "image_width": 96, "image_height": 72}}})
+    code, stdout, err = cli("eval", "descriptors", recipe, "--descriptors", "orb", "--neighbours", "2", "--top", "2",
+                            "-o", tmp_path / "r", "-q", "--json")
+    assert code == 0, err
+    assert len(json.loads(stdout)["targets"]) == 16  # Barbosa 2017's 16

@@ -91,7 +91,8 @@ def test_the_foxglove_layout_shows_topics_the_logs_have(full_log: RunResult) -> 
 
 
 @pytest.mark.parametrize("recipe, overrides, layout", [
-    ("synthetic_localize", {"frames_per_traversal": 30, "route_length_m": 45}, "slamfront-localization.json"),
+    ("synthetic_localize", {"main.params.frames_per_traversal": 30, "main.params.route_length_m": 45},
+     "slamfront-localization.json"),
     ("synthetic_register", {"frames_per_traversal": 8, "route_length_m": 30}, "slamfront-registration.json"),
 ])
 def test_localization_and_registration_layouts_show_topics_their_logs_have(

@@ -128,3 +128,43 @@ def test_pnp_pose_composes_into_a_world_pose() -> None:
     world_from_a[:3, 3] = [10.0, 0.0, 2.0]
     result = pnp_ransac(points, kb, K)
     np.testing.assert_allclose(world_from_a @ invert(result.transform), world_from_a @ invert(b_from_a), atol=1e-6)
+
+
+def test_pnp_on_many_to_one_correspondences_keeps_the_first_of_each() -> None:
+    """Nearest-neighbour matching is many-to-one: several pixels for one 3-D point. PnP keeps
+    the first (give them closest first) and still finds the pose; never raises."""
+    points, b_from_a, _, (kb, _) = _scene(7, n_outliers=0)
+    rng = np.random.default_rng(8)
+    repeats = rng.integers(0, 20, 60)  # 60 more rows, each a wrong pixel for one of the first 20 points
+    objects = np.concatenate([points, points[repeats]])
+    pixels = np.concatenate([kb, rng.uniform(0, 320, (60, 2))])
+    result = pnp_ransac(objects, pixels, K, threshold_px=2.0)
+    assert result is not None
+    np.testing.assert_allclose(result.transform, b_from_a, atol=1e-6)
+    assert result.inliers.max() < len(points)  # the repeated rows were never used
+
+
+@pytest.mark.parametrize("case", ["three_points_28_rows", "one_point", "collinear", "coincident", "nan_pixels"])
+def test_pnp_on_degenerate_input_is_a_failure_not_an_error(case: str) -> None:
+    """SQPnP asserts (cv2.error) on correspondences carrying few distinct points, as
+    many-to-one matching gives; these and their relatives are None, never an exception."""
+    rng = np.random.default_rng(0)
+    objects = np.column_stack([rng.uniform(-1, 1, 3), rng.uniform(-1, 1, 3), rng.uniform(4, 6, 3)])
+    if case == "three_points_28_rows":  # raised cv2.error before the rows were made one-to-one
+        rows = rng.integers(0, 3, 28)
+        objects, pixels = objects[rows], _project(objects[rows], np.eye(4)) + rng.normal(0, 1, (28, 2))
+    elif case == "one_point":
+        objects, pixels = np.repeat(objects[:1], 30, axis=0), rng.uniform(0, 320, (30, 2))
+    elif case == "collinear":
+        objects = np.column_stack([np.linspace(-1, 1, 30), np.zeros(30), np.full(30, 5.0)])
+        pixels = _project(objects, np.eye(4))
+    elif case == "coincident":
+        objects = np.array([1.0, 0.5, 5.0]) + rng.normal(0, 1e-9, (30, 3))
+        pixels = rng.uniform(0, 320, (30, 2))
+    else:
+        objects = np.column_stack([rng.uniform(-1, 1, 30), rng.uniform(-1, 1, 30), rng.uniform(4, 6, 30)])
+        pixels = np.full((30, 2), np.nan)
+    result = pnp_ransac(objects, pixels, K, min_inliers=4)
+    assert result is None or np.all(np.isfinite(result.transform))
+    if case in ("one_point", "nan_pixels"):
+        assert result is None

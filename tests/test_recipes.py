@@ -9,10 +9,28 @@ import pytest
 
 from slamfront.mcaplog.reader import summarize
 from slamfront.mcaplog.validate import validate_log
-from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
+from slamfront.recipe import Recipe, build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline
+from slamfront_plugins.sources.synthetic import SyntheticWorld
+from tests.helpers import write_tum_layout
 
 RECIPES = sorted(recipes_dir().glob("*.yaml"))
+
+
+def data_root_for(recipe: Recipe, tmp_path: Path, shared_data: Path) -> Path:
+    """The shared data root, or, for a recipe on a TUM sequence (not available here), a copy
+    of it (by links) with a TUM-layout sequence of synthetic frames where the recipe looks."""
+    spec = recipe.source.params.get("main", recipe.source.model_dump())
+    if spec["plugin"] != "tum_rgbd":
+        return shared_data
+    root = tmp_path / "data"
+    root.mkdir()
+    for entry in shared_data.iterdir():
+        (root / entry.name).symlink_to(entry)
+    world = SyntheticWorld(SyntheticWorld.Config(mode="stream", laps=1, frames_per_traversal=12, image_width=160,
+                                                 image_height=120))
+    write_tum_layout(root / spec["params"]["root"], list(world.frames()))
+    return root
 
 
 def test_there_are_recipes() -> None:
@@ -23,7 +41,7 @@ def test_there_are_recipes() -> None:
 def test_recipe_validates_and_smoke_runs(path: Path, tmp_path: Path, shared_data: Path) -> None:
     recipe, _ = load_recipe(path)
     assert recipe.description, f"{path.name} needs a description (shown by `slamfront recipes`)"
-    pipeline = build_pipeline(recipe, str(path))
+    pipeline = build_pipeline(recipe, str(path), data=data_root_for(recipe, tmp_path, shared_data))
     result = run_pipeline(pipeline, str(path), tmp_path, progress=False, max_frames=12)
     assert summarize(result.log_path).complete
     validation = validate_log(result.log_path)

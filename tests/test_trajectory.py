@@ -13,6 +13,7 @@ from slamfront.core.alignment import ate_rmse, umeyama
 from slamfront.core.errors import CoreError
 from slamfront.core.trajectory import (
     absolute_trajectory_error,
+    all_intervals_error,
     associate,
     delta_pairs,
     evaluate_poses,
@@ -157,6 +158,40 @@ def test_agrees_with_evo_on_the_shared_trajectory_pair(fr1: tuple[Path, Path]) -
 def test_evaluate_poses_needs_three_for_alignment() -> None:
     with pytest.raises(CoreError, match="at least 3"):
         evaluate_poses(_poses(2), _poses(2))
+
+
+def test_all_intervals_rpe_is_the_mean_of_every_intervals_rmse() -> None:
+    """Sturm et al. 2012: RMSE(E_1:n) = mean over delta of RMSE(E_1:n, delta), all N (N-1)/2 pairs used."""
+    rng = np.random.default_rng(3)
+    gt = _poses(12)
+    est = gt.copy()
+    est[:, :3, 3] += rng.normal(0, 0.05, (12, 3))
+    every = all_intervals_error(gt, est)
+    per_delta = [relative_pose_error(gt, est, delta_pairs(np.arange(12.0), d)) for d in range(1, 12)]
+    assert every.rmse == pytest.approx(np.mean([r.translation_statistics.rmse for r in per_delta]), rel=1e-12)
+    assert every.max == pytest.approx(max(r.translation_statistics.max for r in per_delta), rel=1e-12)
+    assert every.n_pairs == 66
+    assert np.isnan(all_intervals_error(gt[:1], est[:1]).rmse)
+
+
+def test_all_intervals_rpe_agrees_with_evo_delta_by_delta(fr1: tuple[Path, Path]) -> None:
+    """What `evo_rpe tum GT EST -a --delta d --all_pairs` gives for every d, averaged (first 80 poses)."""
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    evo_gt, evo_est = sync.associate_trajectories(
+        file_interface.read_tum_trajectory_file(str(fr1[0])), file_interface.read_tum_trajectory_file(str(fr1[1])))
+    evo_gt.reduce_to_ids(range(80))
+    evo_est.reduce_to_ids(range(80))
+    evo_est.align(evo_gt)
+    theirs = []
+    for delta in range(1, 80):
+        rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta, delta_unit=metrics.Unit.frames,
+                          all_pairs=True)
+        rpe.process_data((evo_gt, evo_est))
+        theirs.append(rpe.get_statistic(metrics.StatisticsType.rmse))
+    ours = evaluate_poses(evo_gt.poses_se3, evo_est.poses_se3, method="none", all_intervals=True)
+    assert ours.metrics()["rpe_all_intervals_rmse_m"] == pytest.approx(np.mean(theirs), abs=1e-9)
 
 
 def test_quaternion_conversions_are_scipys_bits() -> None:

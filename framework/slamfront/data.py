@@ -13,7 +13,8 @@ Downloads (``slamfront datasets download`` and ``fetch``) go to :func:`download_
 ``$SLAMFRONT_DATA`` when set, else the per-user data directory, never into a
 ``shared/data`` folder beside a checkout (provided data is read, not written). A
 relative path in a plugin config typed :data:`DataPath` is resolved against the data
-root, so recipes stay portable between machines.
+root, so recipes stay portable between machines; one found only among the downloads
+resolves there (a dataset fetched with ``slamfront datasets download``).
 """
 
 from __future__ import annotations
@@ -76,7 +77,10 @@ def _resolve_data_path(value: Path, info: ValidationInfo) -> Path:
     if value.is_absolute():
         return value
     root = (info.context or {}).get("data_root") if info.context else None
-    return (Path(root) if root is not None else data_root()) / value
+    resolved = (Path(root) if root is not None else data_root()) / value
+    if not resolved.exists() and (download_root() / value).exists():
+        return download_root() / value  # a downloaded dataset
+    return resolved
 
 
 def __getattr__(name: str) -> Any:
@@ -93,7 +97,8 @@ if TYPE_CHECKING:
     from pydantic import AfterValidator
 
     DataPath = Annotated[Path, AfterValidator(_resolve_data_path)]
-    """A path in a plugin config: absolute as given, relative ones under the data root."""
+    """A path in a plugin config: absolute as given, relative ones under the data root (or, when
+    only there, among the downloads)."""
 
 
 def path_inside(folder: Path, relative: str, where: str) -> Path:

@@ -6,7 +6,9 @@ For each descriptor and each target frame (drawn at random, as the paper's 16):
   threshold, RANSAC; :mod:`slamfront.matching`) with its ``neighbours`` previous and
   next frames. A good descriptor gives a bell-shaped curve peaking next to the target.
 - **global test** (§5.1.2, tables 1-2): matches with every other frame; the ``top``
-  frames with most matches (Q/C pairs) should be the target's neighbours.
+  frames with most matches (Q/C pairs) should be the target's neighbours. Ties are
+  shared out evenly (a tie straddling the cut counts the share of near frames in it,
+  not whichever is closest), and a frame with no match is never a hit.
 - **matching speed** (§5.1.3, table 3): mean time of one two-frame match in the global test.
 - **dissimilarity** (§5.1.4, table 4): the Euclidean distance (eq. 4.1) between the
   target's keypoint count and the matches found in each neighbour,
@@ -71,7 +73,8 @@ class DescriptorResult:
     match_ms: float = float("nan")
     dissimilarity: float = float("nan")
     top_near_fraction: float = float("nan")
-    """Share of the top-``top`` frames within ``neighbours`` of their target."""
+    """Share of the top-``top`` frames within ``neighbours`` of their target (ties shared
+    evenly, frames without a match never count: :func:`near_share`)."""
     verified_distances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     unrelated_distances: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
@@ -100,6 +103,32 @@ class DescriptorEvaluation:
             }
             for r in self.results
         }
+
+
+def near_share(counts: np.ndarray, target: int, top: int, neighbours: int) -> float:
+    """Share of the ``top`` most similar frames that lie within ``neighbours`` of ``target``.
+
+    Neutral about ties: when equal counts straddle the cut, each slot left counts the
+    share of near frames in the tied group, so the order frames are listed in decides
+    nothing. A frame with 0 matches is never near (no evidence of a neighbour).
+
+    :param counts: (F,) matches of the target with every frame (its own entry is ignored).
+    """
+    others = np.array([i for i in range(len(counts)) if i != target], dtype=np.int64)
+    if len(others) == 0:
+        return float("nan")
+    values = np.asarray(counts, dtype=np.int64)[others]
+    near = (np.abs(others - target) <= neighbours) & (values > 0)
+    slots = min(top, len(others))
+    hits, left = 0.0, slots
+    for value in sorted(set(values.tolist()), reverse=True):
+        if left == 0:
+            break
+        group = values == value
+        taken = min(left, int(group.sum()))
+        hits += taken * float(near[group].mean())
+        left -= taken
+    return hits / slots
 
 
 def pick_targets(n_frames: int, count: int, seed: int) -> list[int]:
@@ -167,9 +196,10 @@ def evaluate_descriptor(
             if offset != 0 and 0 <= other < n:
                 local[k] = counts[other]
         result.local[target] = local
-        ranked = sorted((i for i in range(n) if i != target), key=lambda i: (-counts[i], abs(i - target)))
+        # listed most matches first, ties in frame order (the hit rate does not depend on it)
+        ranked = sorted((i for i in range(n) if i != target), key=lambda i: (-counts[i], i))
         result.top[target] = [(int(i), int(counts[i])) for i in ranked[:top]]
-        near += [abs(i - target) <= neighbours for i, _ in result.top[target]]
+        near.append(near_share(counts, target, top, neighbours))
         for i in ranked[-min(5, len(ranked)):] if ranked else []:
             _, d = unthresholded.putative(a.descriptors, frames[i].descriptors)
             distances_far.append(d)
@@ -187,7 +217,7 @@ def evaluate_descriptor(
 def evaluate_descriptors(
     images: Iterable[tuple[str, np.ndarray]],
     choices: Sequence[DescriptorChoice],
-    n_targets: int = 4,
+    n_targets: int = 16,
     targets: Sequence[int] = (),
     neighbours: int = 10,
     top: int = 5,

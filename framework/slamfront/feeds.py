@@ -110,6 +110,7 @@ class FrameLogger:
             height=int(frame.image.shape[0]),
             has_depth=frame.depth is not None,
             pose=None if frame.pose is None else np.asarray(frame.pose, dtype=np.float64),
+            scene=frame.scene,
         )
         options = self.options
         self.log.write(FRAMES_TOPIC, info, stamp)

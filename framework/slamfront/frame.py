@@ -61,6 +61,9 @@ class Frame:
     :param depth: ``(H, W)`` float32 depth along the optical axis in metres, 0 where unknown.
     :param camera: intrinsics of ``image`` (and of ``depth``, which is registered to it).
     :param pose: ``(4, 4)`` ground-truth camera-to-world transform, if the source knows it.
+    :param scene: which scene the frame shows ("" for a source's own). Frames of different
+        scenes never show the same place: a localizer's map of one scene cannot hold a
+        frame of another, which is how evaluation knows a frame is out of the map.
     """
 
     index: int
@@ -72,6 +75,7 @@ class Frame:
     depth: np.ndarray | None = None
     camera: Camera | None = None
     pose: np.ndarray | None = None
+    scene: str = ""
 
     @property
     def timestamp_ns(self) -> int:

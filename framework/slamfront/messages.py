@@ -187,13 +187,14 @@ def _decode(value: Any, hint: Any) -> Any:
     if isinstance(value, list):
         inner = _list_item_hint(hint)
         decoded = [_decode(v, inner) for v in value]
-        return tuple(decoded) if typing.get_origin(_strip_optional(hint)) is tuple else decoded
-    if isinstance(value, int) and _strip_optional(hint) is float:
+        return tuple(decoded) if typing.get_origin(strip_optional(hint)) is tuple else decoded
+    if isinstance(value, int) and strip_optional(hint) is float:
         return float(value)
     return value
 
 
-def _strip_optional(hint: Any) -> Any:
+def strip_optional(hint: Any) -> Any:
+    """``X | None`` -> ``X``; any other type hint unchanged."""
     if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
         args = [a for a in typing.get_args(hint) if a is not type(None)]
         if len(args) == 1:
@@ -210,12 +211,12 @@ def _accepts_float(hint: Any) -> bool:
 
 
 def _list_item_hint(hint: Any) -> Any:
-    args = typing.get_args(_strip_optional(hint))
+    args = typing.get_args(strip_optional(hint))
     return args[0] if args else Any
 
 
 def _dict_value_hint(hint: Any) -> Any:
-    args = typing.get_args(_strip_optional(hint))
+    args = typing.get_args(strip_optional(hint))
     return args[1] if len(args) == 2 else Any
 
 
@@ -280,6 +281,8 @@ class FrameInfo(Message):
     has_depth: bool = False
     pose: np.ndarray | None = None
     """(4, 4) ground-truth camera-to-world transform, when the source knows it."""
+    scene: str = ""
+    """The scene the frame shows ("" for the source's own; see ``Frame.scene``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -330,6 +333,12 @@ class LoopResult(Message):
     """(K,) int64 candidate frame indices, best first (for recall@K), if the detector ranks."""
     reason: str = ""
     """Why there is no answer, when ``match`` is -1."""
+    match_frames: np.ndarray | None = None
+    """(K,) int64 every frame the matched place stands for (it and the frames merged into it),
+    for place scoring (``eval.loop_scoring: place``); None: the match is one frame."""
+    searched: bool = True
+    """False when the detector did not search for this frame but repeated an earlier answer
+    (``eval.unsearched_frames: exclude`` leaves such frames out of the scores)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -503,16 +512,26 @@ class PoseEstimate(Message):
     keyframe_pose: np.ndarray | None = None
     """(4, 4) the chosen keyframe's stored camera-to-world transform."""
     inliers: int = 0
-    """Two-image matches with the chosen keyframe that survived RANSAC (the similarity)."""
+    """Two-image matches with the most similar keyframe that survived RANSAC (the similarity)."""
     second_inliers: int = 0
-    """The same for the best other keyframe (how ambiguous the answer is)."""
+    """The same for the second most similar keyframe."""
     refined: bool = False
     pnp_inliers: int = 0
     candidates: np.ndarray | None = None
-    """(K,) int64 frame indices of the keyframes compared in full, most similar first."""
+    """(K,) int64 frame indices of the keyframes compared in full, most similar first
+    (``candidates[0]`` is the answer, or the answer refused as an unknown place)."""
     n_compared: int = 0
     """Keyframes matched in full (all of them without pre-selection)."""
     reason: str = ""
+    confidence: float = float("nan")
+    """How sure the localizer is that the most similar keyframe shows this place, 0..1
+    (NaN: nothing to compare); below its threshold the answer is "unknown place"."""
+    n_putative: int = 0
+    """Matches with the most similar keyframe before RANSAC."""
+    coverage: float = 0.0
+    """Share of a 4x4 grid over this image whose cells hold one of those inliers."""
+    competing_inliers: int = 0
+    """Inliers of the most similar keyframe of another place (more than two links from the best one)."""
 
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         """The estimated pose as a ``PoseInFrame`` in ``map`` (suffix ``pose``)."""
@@ -539,13 +558,38 @@ class KeyframeAdded(Message):
 
 @dataclass(frozen=True, eq=False)
 class KeyframeMap(Message):
-    """The whole keyframe map at the end of a run (frames and poses of its nodes)."""
+    """The whole keyframe map at the end of a run: its nodes, their poses and links and,
+    when the localizer keeps its map, every feature and 3-D point, so a later run can
+    localize against it (saved as ``keyframe_map.npz``). K keyframes, N features in all.
+    """
 
     schema_name: ClassVar[str] = "slamfront.KeyframeMap"
     frames: np.ndarray
     """(K,) int64 frame index of each keyframe, in node order."""
     poses: np.ndarray | None = None
     """(K, 4, 4) their camera-to-world poses, when known."""
+    scenes: list[str] = field(default_factory=list)
+    """(K,) the scene of each keyframe (``Frame.scene``)."""
+    edges: np.ndarray | None = None
+    """(E, 2) int64 linked node pairs (a < b): keyframes visited one after the other."""
+    descriptor: str = ""
+    """Local descriptor type the features are (``orb``, ``sift``, ...)."""
+    metric: str = ""
+    """How they are compared: ``hamming`` or ``l2``."""
+    offsets: np.ndarray | None = None
+    """(K + 1,) int64: keyframe k's features are rows ``offsets[k]:offsets[k + 1]``."""
+    keypoints: np.ndarray | None = None
+    """(N, 2) float32 pixel positions."""
+    descriptors: np.ndarray | None = None
+    """(N, D) descriptors (float32, or uint8 packed bits)."""
+    points: np.ndarray | None = None
+    """(N, 3) float32 keypoints in their keyframe's camera frame (NaN: no depth)."""
+    vector_kind: str = ""
+    """What ``vectors`` are: ``thumbnail`` or ``descriptor_vector`` ("" for none)."""
+    vectors: np.ndarray | None = None
+    """(K, V) float32 unit global vectors for pre-selection."""
+    camera_matrices: np.ndarray | None = None
+    """(K, 3, 3) float64 intrinsics of each keyframe."""
 
     def foxglove(self, stamp_ns: int) -> list[tuple[str, Any]]:
         """All keyframe poses as one ``PosesInFrame`` (suffix ``keyframes``)."""
@@ -574,7 +618,12 @@ class BowStatistics(Message):
     active_words: int
     """Words the nearest-word search scans (those of STM and WM places)."""
     quantisation_error: float
-    """Mean distance of the frame's features to their words (Wang et al. 2017, fig. 6)."""
+    """Mean distance of the frame's features to their words (Wang et al. 2017, fig. 6), in the
+    vocabulary's unit: squared L2 (float descriptors) or bits."""
+    by_ratio_test: int = -1
+    """Features the ratio test ND / NND decided (the rest: ND > T_ND2 or ND < T_ND1); -1: none quantised."""
+    by_nd_high: int = -1
+    """Features that became words because ND > T_ND2, without the ratio test (greedy rule)."""
     update_rule: str = "greedy"
     other_rule: str = ""
     """The other update rule, when the detector also tracks its vocabulary for comparison."""
@@ -597,6 +646,12 @@ class BowStatistics(Message):
     """T_loop: a loop is accepted when ``no_loop_posterior`` is below it."""
     processing_seconds: float = 0.0
     """This frame's detector time (Wang et al. 2017, fig. 9b)."""
+    searched_words: int = 0
+    """Words the nearest-word search scanned for this frame (the time grows with them)."""
+    searched_places: int = 0
+    """Places in working memory when the frame was searched (or would have been)."""
+    modelled_seconds: float = float("nan")
+    """The deterministic time model's seconds for this frame, when the budget is compared with it."""
     time_budget_seconds: float = 0.0
 
 

@@ -412,6 +412,7 @@ class ReplayFeed(FrameFeed):
         frame = Frame(
             index=info.frame, timestamp=info.timestamp, image=image, traversal=info.traversal,  # type: ignore[arg-type]
             sequence_index=info.sequence_index, name=info.name, depth=depth, camera=camera, pose=info.pose,
+            scene=info.scene,
         )
         return FrameStep(frame, recorded=pending.recorded, logged=[pending.info, *pending.logged])
 

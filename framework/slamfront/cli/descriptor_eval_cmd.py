@@ -41,7 +41,8 @@ def add_parser(tools: argparse._SubParsersAction) -> None:
     parser.add_argument("source", metavar="SOURCE", help="image folder, or a recipe file / shipped recipe name")
     parser.add_argument("--descriptors", default="orb,brisk,akaze,sift,brief,freak",
                         help="comma-separated; name+detector for BRIEF/FREAK (default: on SIFT keypoints, as the paper)")
-    parser.add_argument("--targets", type=int, default=4, help="target frames drawn at random (default 4)")
+    parser.add_argument("--targets", type=int, default=16,
+                        help="target frames drawn at random (default 16, as Barbosa 2017)")
     parser.add_argument("--target", type=int, action="append", default=[], metavar="FRAME",
                         help="test this frame (0-based; repeatable; replaces the random draw)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random draw")

@@ -53,6 +53,16 @@ def backproject(
     return np.stack([x, y, z], axis=1).astype(np.float32)
 
 
+def _first_of_each(rows: np.ndarray) -> np.ndarray:
+    """(N,) bool: True for the first occurrence of each distinct row of (N, D) ``rows``."""
+    if len(rows) == 0:
+        return np.zeros(0, dtype=bool)
+    _, first = np.unique(rows, axis=0, return_index=True)
+    keep = np.zeros(len(rows), dtype=bool)
+    keep[first] = True
+    return keep
+
+
 @dataclass(frozen=True)
 class PnpResult:
     """A PnP solution.
@@ -78,27 +88,37 @@ def pnp_ransac(
 ) -> PnpResult | None:
     """Camera pose from (N, 3) object points seen at (N, 2) pixels (SQPnP in RANSAC, then LM).
 
-    Rows with a NaN object point are ignored. :returns: None when fewer than
-    ``min_inliers`` correspondences agree on one pose.
+    Rows with a NaN object point are ignored, and so are repeats: PnP needs one image
+    point per object point, so only the first row of each distinct object point and of
+    each distinct pixel is kept (give the rows best first). Never raises on the
+    geometry of its input: too few distinct points, or points OpenCV finds degenerate
+    (it asserts on nearly coincident ones), give None like any other failure.
+
+    :returns: None when fewer than ``min_inliers`` correspondences agree on one pose.
     """
     object_points = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
     image_points = np.asarray(image_points, dtype=np.float64).reshape(-1, 2)
     if len(object_points) != len(image_points):
         raise CoreError(f"{len(object_points)} object points but {len(image_points)} image points")
-    usable = np.flatnonzero(np.all(np.isfinite(object_points), axis=1))
+    usable = np.flatnonzero(np.all(np.isfinite(object_points), axis=1) & np.all(np.isfinite(image_points), axis=1))
+    usable = usable[_first_of_each(object_points[usable]) & _first_of_each(image_points[usable])]
     if len(usable) < max(min_inliers, 4):
         return None
     obj, img = object_points[usable], image_points[usable]
     k = np.asarray(camera_matrix, dtype=np.float64)
-    # SQPnP is exact for planar and non-planar points (EPnP and P3P are not: façades are planes)
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        obj, img, k, None, iterationsCount=iterations, reprojectionError=threshold_px,
-        confidence=confidence, flags=cv2.SOLVEPNP_SQPNP,
-    )
-    if not ok or inliers is None or len(inliers) < min_inliers:
+    try:
+        # SQPnP is exact for planar and non-planar points (EPnP and P3P are not: façades are planes)
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            obj, img, k, None, iterationsCount=iterations, reprojectionError=threshold_px,
+            confidence=confidence, flags=cv2.SOLVEPNP_SQPNP,
+        )
+        if not ok or inliers is None or len(inliers) < min_inliers:
+            return None
+        inliers = inliers.ravel()
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inliers], img[inliers], k, None, rvec, tvec)
+    except cv2.error:
+        # degenerate samples (nearly coincident or collinear points) trip OpenCV's assertions
         return None
-    inliers = inliers.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(obj[inliers], img[inliers], k, None, rvec, tvec)
     transform = np.eye(4)
     transform[:3, :3] = cv2.Rodrigues(rvec)[0]
     transform[:3, 3] = tvec.ravel()

@@ -5,7 +5,9 @@
   statistics of ``|trans F_i|``.
 - **RPE** (relative pose error, eqs. 4.2-4.3): ``E_i = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` for
   every pair ``(i, j)`` a fixed delta apart (frames or seconds); statistics of
-  ``|trans E_i|`` and of the rotation angle of ``E_i``.
+  ``|trans E_i|`` and of the rotation angle of ``E_i``. Over all intervals (Sturm et al.
+  2012, what Barbosa 2017's table 6 reports): the mean over every delta of that delta's
+  RMSE (:func:`all_intervals_error`).
 - **Association** of two timestamped trajectories as the benchmark's ``associate.py``.
 
 Poses are (N, 4, 4) camera-to-world transforms; ``Q`` is the ground truth, ``P`` the
@@ -222,6 +224,45 @@ def relative_pose_error(gt_poses: np.ndarray, est_poses: np.ndarray, pairs: np.n
 
 
 @dataclass(frozen=True)
+class AllIntervalsError:
+    """RPE over every time interval of a trajectory (Sturm et al. 2012).
+
+    :ivar rmse: ``1/(n-1) sum_{delta=1}^{n-1} RMSE(E, delta)``: the mean over intervals of
+        each interval's translational RMSE, metres (the benchmark paper's definition).
+    :ivar max: largest ``|trans E|`` over all pairs ``i < j``, metres.
+    :ivar rotation_rmse_deg: the same mean of per-interval RMSEs for the rotation angle.
+    :ivar n_pairs: pairs evaluated, ``n (n - 1) / 2``.
+    """
+
+    rmse: float
+    max: float
+    rotation_rmse_deg: float
+    n_pairs: int
+
+
+def all_intervals_error(gt_poses: np.ndarray, est_poses: np.ndarray) -> AllIntervalsError:
+    """RPE of (N, 4, 4) associated poses over every interval ``delta = 1 .. N-1`` (in index order).
+
+    One interval at a time, so memory stays O(N) although all N (N - 1) / 2 pairs are used.
+    """
+    gt, est = _check_pair(gt_poses, est_poses)
+    n = len(gt)
+    if n < 2:
+        nan = float("nan")
+        return AllIntervalsError(nan, nan, nan, 0)
+    gt_inverse, est_inverse = _inverse(gt), _inverse(est)
+    rmse, rotation_rmse, largest = [], [], 0.0
+    for delta in range(1, n):
+        error = _inverse(gt_inverse[:-delta] @ gt[delta:]) @ (est_inverse[:-delta] @ est[delta:])
+        translation = np.linalg.norm(error[:, :3, 3], axis=1)
+        rotation = _rotation_angles_deg(error[:, :3, :3])
+        rmse.append(np.sqrt(np.mean(translation**2)))
+        rotation_rmse.append(np.sqrt(np.mean(rotation**2)))
+        largest = max(largest, float(translation.max()))
+    return AllIntervalsError(float(np.mean(rmse)), largest, float(np.mean(rotation_rmse)), n * (n - 1) // 2)
+
+
+@dataclass(frozen=True)
 class Drift:
     """How far an estimate has drifted by its last pose.
 
@@ -278,10 +319,16 @@ class TrajectoryEvaluation:
     align: AlignMethod
     delta: float
     delta_unit: DeltaUnit
+    all_intervals: AllIntervalsError | None = None
 
     def metrics(self) -> dict[str, float | int | str]:
         """Flat metrics, metres and degrees, as ``metrics.json`` and ``eval traj --json`` give them."""
         a, t, r = self.ate.statistics, self.rpe.translation_statistics, self.rpe.rotation_statistics
+        every = {} if self.all_intervals is None else {
+            "rpe_all_intervals_rmse_m": self.all_intervals.rmse,
+            "rpe_all_intervals_max_m": self.all_intervals.max,
+            "rpe_all_intervals_rotation_rmse_deg": self.all_intervals.rotation_rmse_deg,
+        }
         return {
             "ate_rmse_m": a.rmse,
             "ate_mean_m": a.mean,
@@ -301,6 +348,7 @@ class TrajectoryEvaluation:
             "alignment_scale": self.ate.alignment.scale,
             "rpe_delta": self.delta,
             "rpe_delta_unit": self.delta_unit,
+            **every,
         }
 
 
@@ -312,11 +360,13 @@ def evaluate_poses(
     delta: float = 1,
     delta_unit: DeltaUnit = "frames",
     pairs: np.ndarray | None = None,
+    all_intervals: bool = False,
 ) -> TrajectoryEvaluation:
-    """ATE and RPE of already associated (N, 4, 4) poses.
+    """ATE and RPE of already associated (N, 4, 4) poses, in the order given (time order).
 
     :param timestamps: (N,) seconds, for a delta in seconds (and the record).
     :param pairs: the (N, 2) association these poses came from (default: identity).
+    :param all_intervals: also the RPE over every interval (:func:`all_intervals_error`).
     """
     gt, est = _check_pair(gt_poses, est_poses)
     if len(gt) == 0:
@@ -327,9 +377,11 @@ def evaluate_poses(
         raise CoreError("a delta in seconds needs timestamps")
     rpe_pairs = delta_pairs(stamps, delta, delta_unit)
     # a rigid alignment leaves relative motions unchanged; a scale does not
-    rpe = relative_pose_error(gt, ate.alignment.apply_to_poses(est), rpe_pairs)
+    aligned = ate.alignment.apply_to_poses(est)
+    rpe = relative_pose_error(gt, aligned, rpe_pairs)
+    every = all_intervals_error(gt, aligned) if all_intervals else None
     association = np.stack([np.arange(len(gt))] * 2, axis=1) if pairs is None else np.asarray(pairs, np.int64)
-    return TrajectoryEvaluation(association, ate, rpe, method, delta, delta_unit)
+    return TrajectoryEvaluation(association, ate, rpe, method, delta, delta_unit, every)
 
 
 def evaluate_trajectories(
@@ -337,13 +389,17 @@ def evaluate_trajectories(
     gt_poses: np.ndarray,
     est_stamps: np.ndarray,
     est_poses: np.ndarray,
-    max_difference: float = 0.02,
+    max_difference: float = 0.01,
     offset: float = 0.0,
     method: AlignMethod = "se3",
     delta: float = 1,
     delta_unit: DeltaUnit = "frames",
+    all_intervals: bool = False,
 ) -> TrajectoryEvaluation:
     """Associate two timestamped trajectories (estimate shifted by ``offset``), then ATE and RPE.
+
+    ``max_difference`` defaults to evo's association window (0.01 s); the TUM
+    benchmark's ``associate.py`` uses 0.02 s.
 
     :raises CoreError: no pose of the estimate is within ``max_difference`` s of one of
         the ground truth.
@@ -357,4 +413,4 @@ def evaluate_trajectories(
     gt = np.asarray(gt_poses, dtype=np.float64)[pairs[:, 0]]
     est = np.asarray(est_poses, dtype=np.float64)[pairs[:, 1]]
     stamps = np.asarray(gt_stamps, dtype=np.float64)[pairs[:, 0]]
-    return evaluate_poses(gt, est, stamps, method, delta, delta_unit, pairs)
+    return evaluate_poses(gt, est, stamps, method, delta, delta_unit, pairs, all_intervals)

@@ -485,3 +485,27 @@ def distance_histograms(
         ax.set_title(label, fontsize=9)
         ax.set_xlabel("descriptor distance")
     return _save_panels(plt, fig, axes, len(labels), title or "match distances", path)
+
+
+def localization_pr(
+    recall: np.ndarray, precision: np.ndarray, operating: tuple[float, float], recall_at_100p: float, path: Path,
+    title: str = "",
+) -> Path:
+    """A localizer's precision-recall curve over its confidence, with its operating point marked.
+
+    :param recall: (T,) recall at each confidence threshold, thresholds decreasing.
+    :param precision: (T,) precision at the same thresholds.
+    :param operating: (recall, precision) of the answers the localizer gave.
+    :param recall_at_100p: the largest recall with no wrong answer (drawn as a dotted line).
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=110)
+    ax.step(np.r_[0.0, recall], np.r_[1.0, precision], where="post", label="confidence swept")
+    ax.axvline(recall_at_100p, color="tab:green", linestyle=":", linewidth=1,
+               label=f"recall@100%P = {recall_at_100p:.3f}")
+    ax.scatter([operating[0]], [operating[1]], color="tab:red", zorder=3,
+               label=f"answers given (P {operating[1]:.3f}, R {operating[0]:.3f})")
+    ax.set_xlim(0, 1.0)
+    ax.set_ylim(0, 1.02)
+    return _finish(fig, ax, path, title or "localization precision-recall", "recall (in-map frames)",
+                   "precision", "lower left")

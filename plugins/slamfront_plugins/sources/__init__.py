@@ -2,6 +2,7 @@
 
 from slamfront import hookimpl
 from slamfront_plugins.sources.image_folder import ImageFolder
+from slamfront_plugins.sources.mixed import MixedScenes
 from slamfront_plugins.sources.nordland_stream import NordlandStream
 from slamfront_plugins.sources.paired_datasets import GardensPoint, Nordland, PairedFolders, UofA, VprBench
 from slamfront_plugins.sources.rgbd import RgbdFolder, TumRgbd
@@ -12,5 +13,5 @@ from slamfront_plugins.sources.synthetic import SyntheticWorld
 def slamfront_sources() -> list[type]:
     return [
         SyntheticWorld, ImageFolder, RgbdFolder, TumRgbd, Nordland, NordlandStream, GardensPoint, UofA, VprBench,
-        PairedFolders,
+        PairedFolders, MixedScenes,
     ]

@@ -13,13 +13,14 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from types import MappingProxyType
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.data import DataPath, path_inside
+from slamfront.datasets import DatasetDownload
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
@@ -38,6 +39,32 @@ KNOWN_CAMERAS = MappingProxyType(
 KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim", "slambook_room"]
 
 POSE_READERS = TRAJECTORY_READERS
+
+_TUM = "https://cvg.cit.tum.de/rgbd/dataset"
+
+
+def _tum_sequence(name: str, group: str, title: str) -> DatasetDownload:
+    """A TUM RGB-D benchmark sequence archive, unpacked so its folder holds rgb.txt directly."""
+    folder = f"rgbd_dataset_{group}_{name}"
+    return DatasetDownload(
+        name=f"tum_{group.replace('freiburg', 'fr')}_{name}",
+        title=title,
+        url=f"{_TUM}/{group}/{folder}.tgz",
+        homepage="https://cvg.cit.tum.de/data/datasets/rgbd-dataset/download",
+        license="CC BY 4.0; cite Sturm et al. 2012 (TUM publishes no checksum: the first download records one)",
+        archive="tar",
+        members=f"{folder}/",
+        strip=f"{folder}/",
+        expect=("rgb.txt", "depth.txt", "groundtruth.txt"),
+    )
+
+
+TUM_FR1_DESK = _tum_sequence(
+    "desk", "freiburg1", "TUM RGB-D fr1/desk: hand-held, four desks of an office (Barbosa 2017, table 8)"
+)
+TUM_FR2_PIONEER_SLAM = _tum_sequence(
+    "pioneer_slam", "freiburg2", "TUM RGB-D fr2/pioneer_slam: a Pioneer robot in a hall (Barbosa 2017, tables 1-7)"
+)
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 
@@ -213,6 +240,7 @@ class TumRgbd(RgbdSequence):
     """
 
     name = "tum_rgbd"
+    downloads: ClassVar[tuple[DatasetDownload, ...]] = (TUM_FR1_DESK, TUM_FR2_PIONEER_SLAM)
 
     class Config(RgbdConfig):
         root: DataPath = Field(description="sequence folder (relative: under the data root)")
