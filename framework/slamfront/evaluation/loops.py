@@ -49,7 +49,7 @@ def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 _PER_TOLERANCE = ("recall_at_100p", "auc_pr", "n_queries_with_true_match", "threshold_at_100p",
-                  "precision_at_operating_point", "recall_at_operating_point")
+                  "precision_at_operating_point", "recall_at_operating_point", "correct_answer_ceiling")
 
 
 @dataclass
@@ -101,6 +101,10 @@ def score_loops(
         "unsearched_frames": options.unsearched_frames,
         "n_queries_excluded": excluded,
         "threshold_at_100p": curve.threshold_at_100p(),
+        # what any confidence could reach: recall@100%P <= this, equal when every
+        # correct answer is more confident than every wrong one
+        "correct_answer_ceiling": int(np.sum(answered & correct)) / max(int(positives.sum()), 1),
+        "answered_of_answerable": int(np.sum(answered & positives)) / max(int(positives.sum()), 1),
         "precision_at_operating_point": op_tp / max(int(op_accepted.sum()), 1),
         "recall_at_operating_point": op_tp / max(int(positives.sum()), 1),
     }
