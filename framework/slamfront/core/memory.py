@@ -18,13 +18,19 @@ history.
 **Transfer** (``Memory::forget`` for an incremental vocabulary). When an image took
 longer than the time budget, places move from WM to LTM one at a time, in transfer
 order, until at least as many words have left the nearest-word search as arrived in it
-during the image (the image's new words and those of places retrieved from LTM): the
-searched vocabulary, which is what the time grows with, never grows while the budget
-is exceeded, but it is not brought back under it either: the time hovers at the budget.
+during the image (the image's new words and those of places retrieved from LTM).
+That rule alone keeps the searched vocabulary, which is what the time grows with, from
+growing while the budget is exceeded, but does not bring it back under: the time
+hovers at the budget, half the images over it. RTAB-Map means the budget as a limit
+(Labbé & Michaud 2013: the time to process new observations is kept under a fixed
+limit), so a caller that can *predict* the next image's time from WM's size
+(``predict``, e.g. a :class:`LinearTimeModel` of searched words and WM places) also
+transfers when the prediction is over the budget, before the image is, and places keep
+leaving until the prediction is within it.
 ``forget_places: true`` also transfers at least one place more than entered WM during
-the image (RTAB-Map's rule without an incremental vocabulary), so WM shrinks while the
-budget is exceeded and the time settles under it. A place cap (``max_working_memory``) transfers in the same order until WM
-holds no more places than the cap: a deterministic limit for reproducible experiments.
+the image (RTAB-Map's rule without an incremental vocabulary). A place cap
+(``max_working_memory``) transfers in the same order until WM holds no more places
+than the cap: a deterministic limit for reproducible experiments.
 
 Transfer order (``Memory::getRemovableSignatures``): lowest weight first, then the
 place that entered WM longest ago, then the oldest id. Never transferred:
@@ -39,7 +45,9 @@ place that entered WM longest ago, then the oldest id. Never transferred:
 Bound: with a time that grows with the searched words, an image over budget leaves no
 more words searched than it found, and one within budget adds at most its arrivals, so
 the words searched never exceed those that fit the budget plus one image's arrivals
-(provided WM holds enough places that are not immune or recent).
+(provided WM holds enough places that are not immune or recent). With ``predict`` every
+image leaves WM predicted within the budget, so an image goes over only when the
+prediction was wrong.
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import nnls
 
 from slamfront.core.errors import CoreError
 
@@ -101,9 +110,32 @@ class LinearTimeModel:
         if min(self.base_s, self.comparison_s, self.place_s) < 0:
             raise CoreError("time model coefficients must be >= 0")
 
-    def seconds(self, features: int, words: int, places: int) -> float:
+    def seconds(self, features: float, words: float, places: float) -> float:
         """Modelled seconds of an image with ``features`` features, ``words`` searched words, ``places`` in WM."""
         return self.base_s + self.comparison_s * features * words + self.place_s * places
+
+    @classmethod
+    def fit(
+        cls, features: np.ndarray, words: np.ndarray, places: np.ndarray, seconds: np.ndarray
+    ) -> tuple[LinearTimeModel, float]:
+        """Non-negative least squares of measured ``seconds`` on (1, features x words, places).
+
+        All arguments are (N,) arrays, one entry per image. Returns the model and its R^2
+        (NaN when the seconds do not vary). Columns are scaled to unit maximum first: the
+        products are ~1e6 times the counts of places, which would otherwise decide the
+        solver's tolerance.
+        """
+        x = np.column_stack([np.ones(len(seconds)), np.asarray(features, float) * np.asarray(words, float),
+                             np.asarray(places, float)])
+        y = np.asarray(seconds, float)
+        scale = np.abs(x).max(axis=0)
+        scale[scale == 0] = 1.0
+        coefficients, _ = nnls(x / scale, y)
+        coefficients = coefficients / scale
+        residual = y - x @ coefficients
+        spread = float(((y - y.mean()) ** 2).sum())
+        r2 = 1.0 - float(residual @ residual) / spread if spread > 0 else float("nan")
+        return cls(*(float(c) for c in coefficients)), r2
 
 
 class MemoryManager:
@@ -232,9 +264,9 @@ class MemoryManager:
 
     def transfer(
         self, elapsed_s: float, words_arrived: int, immune: set[int], release: Callable[[int], int],
-        places_entered: int = 0,
+        places_entered: int = 0, predict: Callable[[], float] | None = None,
     ) -> list[int]:
-        """Move places from WM to LTM if this image was over budget or WM is over its cap.
+        """Move places from WM to LTM if this image (or the next, predicted) is over budget or WM is over its cap.
 
         :param elapsed_s: how long the image took (measured, or modelled).
         :param words_arrived: words that joined the nearest-word search during the image.
@@ -243,18 +275,27 @@ class MemoryManager:
             words left the search with it (those no place still in STM or WM uses).
         :param places_entered: places that entered WM during the image (from STM or LTM);
             with ``forget_places``, at least one more leaves.
+        :param predict: the predicted seconds of the next image with WM as it is now,
+            called again after each transfer: places also leave when it is over the
+            budget, until it is within it (or nothing transferable is left).
         :returns: the transferred places, in transfer order.
         """
         p = self.parameters
-        over_budget = p.time_budget_s > 0 and elapsed_s > p.time_budget_s
+        bounded = p.time_budget_s > 0
+        over_budget = bounded and elapsed_s > p.time_budget_s
+
+        def predicted_within() -> bool:
+            return not bounded or predict is None or predict() <= p.time_budget_s
+
         over_cap = p.max_working_memory > 0 and len(self._wm) > p.max_working_memory
-        if not over_budget and not over_cap:
+        if not over_budget and not over_cap and predicted_within():
             return []
         transferred: list[int] = []
         words_left = 0
         places = places_entered + 1 if p.forget_places else 0
         for place in self.transfer_order(immune):
-            budget_done = not over_budget or (words_left >= words_arrived and len(transferred) >= places)
+            rule_done = not over_budget or (words_left >= words_arrived and len(transferred) >= places)
+            budget_done = rule_done and predicted_within()
             cap_done = p.max_working_memory == 0 or len(self._wm) <= p.max_working_memory
             if budget_done and cap_done:
                 break

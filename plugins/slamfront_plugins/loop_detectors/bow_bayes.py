@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -62,6 +62,8 @@ class _Cost:
     """Words the nearest-word search scanned."""
     places: int = 0
     """Places in WM at the search."""
+    features: int = 0
+    """Features of the frame (0 when it was not searched)."""
 
 
 @dataclass
@@ -87,7 +89,8 @@ class BowBayes(LoopDetector):
     ``p(no loop) < T_loop``. Memory management (STM / WM / LTM, RTAB-Map's) keeps the
     newest places out of the search, moves the lowest-weighted, oldest places out of it
     when a frame takes longer than the time budget (measured, or modelled for
-    reproducible runs) until as many words left the search as arrived, hands a place's
+    reproducible runs) until as many words left the search as arrived, and whenever the
+    time model predicts the next frame over the budget until it does not, hands a place's
     weight to the newer place of an accepted loop, and brings the neighbours of the
     best hypothesis back from LTM.
 
@@ -147,10 +150,16 @@ class BowBayes(LoopDetector):
             2.4e-9, ge=0, description="linear time model: seconds per feature-word comparison"
         )
         model_place_s: float = Field(4.0e-6, ge=0, description="linear time model: seconds per WM place")
+        calibration_frames: int = Field(
+            50, ge=0, description="time_model wall: the model that predicts the time after transfers is fitted to "
+            "the measured times of the frames before the first one over budget (at least this many), and scaled by "
+            "the median measured/predicted ratio of the last this many frames (the machine's load); 0: the model_* "
+            "coefficients as they are"
+        )
         max_working_memory: int = Field(0, ge=0, description="also cap WM at this many places (0 = no cap)")
         forget_places: bool = Field(
-            False, description="over budget, also transfer one place more than entered WM (RTAB-Map without an "
-            "incremental vocabulary): the time settles under the budget instead of at it"
+            False, description="over budget, also transfer one place more than entered WM (RTAB-Map's rule without "
+            "an incremental vocabulary)"
         )
         recent_ratio: float = Field(
             0.2, ge=0, le=1, description="places made since the last accepted loop stay in WM while fewer than this "
@@ -188,6 +197,13 @@ class BowBayes(LoopDetector):
         self._queries_started = False
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
+        # predicting the coming frames' time (see _transfer)
+        self._predictor = self._time_model
+        self._samples: list[tuple[int, int, int, float]] | None = (
+            [] if c.time_model == "wall" and c.calibration_frames > 0 and c.time_budget_s > 0 else None
+        )
+        self._ratios: deque[float] = deque(maxlen=max(c.calibration_frames, 1))
+        self._most_features = 0
         self.clock: Callable[[], float] = time.perf_counter
         """Seconds, for the time budget; tests swap in a modelled clock to be deterministic."""
 
@@ -346,7 +362,7 @@ class BowBayes(LoopDetector):
             self._counts["queries"] += 1
             self._counts["accepted"] += int(result.accepted and result.match >= 0)
         modelled = self._time_model.seconds(n, searched_words, n_searched_places)
-        cost = _Cost(started, other_seconds, modelled, searched_words, n_searched_places)
+        cost = _Cost(started, other_seconds, modelled, searched_words, n_searched_places, n)
         transferred = self._transfer(cost, active_at_start, immune)
         stats = self._statistics(frame.index, n, quantised, other, place, merged, transferred, len(retrieved), step, cost)
         return [*outputs, stats]
@@ -411,14 +427,52 @@ class BowBayes(LoopDetector):
         return places
 
     def _transfer(self, cost: _Cost, active_at_start: int, immune: set[int]) -> list[int]:
-        """RTAB-Map's transfer after the frame, with the time it took so far (or the model's)."""
+        """RTAB-Map's transfer after the frame, with the time it took so far (or the model's).
+
+        Over budget, places leave until as many words left as arrived (RTAB-Map); and
+        whenever the next frame's predicted time is over the budget, until it is within:
+        the next frame searches the words searchable now and WM's places plus the one
+        leaving the STM, and may have as many features as the richest frame so far.
+        """
         elapsed = self.clock() - cost.started - cost.other_seconds
-        compared = cost.modelled if self.config.time_model == "linear" else elapsed
+        wall = self.config.time_model == "wall"
+        compared = elapsed if wall else cost.modelled
         vocabularies = self._vocabularies
         arrived = 0 if vocabularies is None else max(0, vocabularies.main.n_active - active_at_start)
-        transferred = self._memory.transfer(compared, arrived, immune, self._to_long_term, self._entered)
+        self._most_features = max(self._most_features, cost.features)
+        scale = 1.0
+
+        def predict() -> float:
+            words = 0 if vocabularies is None else vocabularies.main.n_active
+            return scale * self._predictor.seconds(self._most_features, words, self._memory.n_wm + 1)
+
+        if wall and cost.features > 0 and self.config.calibration_frames > 0 and self.config.time_budget_s > 0:
+            self._calibrate(cost, elapsed, max(elapsed, predict()) > self.config.time_budget_s > 0)
+            scale = float(np.median(self._ratios)) if self._ratios else 1.0
+
+        transferred = self._memory.transfer(compared, arrived, immune, self._to_long_term, self._entered, predict)
         self._counts["transferred"] += len(transferred)
         return transferred
+
+    def _calibrate(self, cost: _Cost, elapsed: float, binding: bool) -> None:
+        """Fit the time model to this machine's measured times, then track its load.
+
+        The frames before the budget first binds (this frame, or the next one as
+        predicted, over it) span the sizes the predictions are needed for, so the model is
+        fitted to them then; afterwards the median measured/predicted ratio of recent
+        frames scales the prediction (a busier machine makes every frame slower).
+        Measured times only, never ground truth.
+        """
+        if self._samples is not None:
+            self._samples.append((cost.features, cost.words, cost.places, elapsed))
+            if len(self._samples) < self.config.calibration_frames or not binding:
+                return
+            features, words, places, seconds = (np.array(column) for column in zip(*self._samples))
+            self._predictor, _ = LinearTimeModel.fit(features, words, places, seconds)
+            self._samples = None
+        predicted = self._predictor.seconds(cost.features, cost.words, cost.places)
+        if predicted > 0:
+            self._ratios.append(elapsed / predicted)
 
     def _to_long_term(self, place: int) -> int:
         """Take a transferred place out of the search; returns the words that left the search with it."""
