@@ -97,16 +97,16 @@ class BowEvaluation(Evaluation):
             error[other] = (x, col["other_quantisation_error"])
         paths = [
             plots.series_panels([("words", vocabulary, {})], out / "bow_vocabulary.png",
-                                "vocabulary size over time (seed fig. 4)"),
+                                "vocabulary size over time (Wang et al. 2017, fig. 4)"),
             plots.series_panels([("mean quantisation error", error, {})], out / "bow_quantisation.png",
-                                "mean quantisation error per image (seed fig. 6)"),
+                                "mean quantisation error per image (Wang et al. 2017, fig. 6)"),
             plots.series_panels(
                 [(
                     "posterior",
                     {"max p(S_t = i)": (x, col["max_loop_posterior"]), "1 - p(S_t = -1)": (x, 1.0 - col["no_loop_posterior"])},
                     {} if np.isnan(last.loop_threshold) else {"accept: 1 - T_loop": 1.0 - last.loop_threshold},
                 )],
-                out / "bow_posterior.png", "largest loop posterior over time (seed fig. 7)",
+                out / "bow_posterior.png", "largest loop posterior over time (Wang et al. 2017, fig. 7)",
             ),
             plots.series_panels(
                 [
@@ -119,7 +119,7 @@ class BowEvaluation(Evaluation):
                         {"time budget": last.time_budget_seconds * 1000.0} if last.time_budget_seconds > 0 else {},
                     ),
                 ],
-                out / "bow_memory.png", "working memory and processing time (seed fig. 9)",
+                out / "bow_memory.png", "working memory and processing time (Wang et al. 2017, fig. 9)",
             ),
         ]
         return [p.name for p in paths]
