@@ -60,7 +60,7 @@ class SyntheticWorld(Source):
         )
         shuffle_seed: int = Field(0, description="seed of the shuffled order")
         own_patterns: bool = Field(
-            False, description="surface patterns (road, bricks, signs) depend on the seed too; false: on the place "
+            False, description="surface patterns (road, bricks, signs) depend on the world seed too; false: on the place "
             "only, so two worlds share them at one place of the route",
         )
 
