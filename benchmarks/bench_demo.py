@@ -77,12 +77,12 @@ def main() -> None:
         f"`slamfront run demo --set source.params.seed=N` as a fresh process ({os.cpu_count()} cores; the "
         "machine is shared, so the load average when each run ended is beside its wall time, and the CPU "
         "time (user + system), which depends little on the load, beside that). Parameters were "
-        "fixed before these runs: the place threshold from the first 100 frames of world seed 0 "
-        "(`scripts/choose_place_threshold.py recipes/demo.yaml --first 100`), the odometry and loop "
-        "standard deviations a priori; nothing was tuned on these numbers.",
+        "fixed before these runs: the place threshold is chosen by the place map from each run's first "
+        "lap (200 frames, before any revisit), the odometry and loop standard deviations a priori; "
+        "nothing was tuned on these numbers.",
         table(headers, rows + summary),
         "Detector P/R: precision and recall of the loop closures the hierarchical sequence detector "
-        "accepts at its own operating point (confidence 0.75). Verified: those the back end's PnP on "
+        "accepts at its own operating point (its `accept_confidence`). Verified: those the back end's PnP on "
         "depth confirmed and added to the pose graph (verified R: their recall). ATE after a rigid "
         "alignment; drift: position error of the last frame relative to the first, per distance driven.",
     ])

@@ -9,7 +9,6 @@ import pytest
 from pydantic import ValidationError
 
 from slamfront.core.loops import LoopGroundTruth, precision_recall
-from slamfront.core.memory import working_memory_bound
 from slamfront.errors import PluginError
 from slamfront.frame import Frame
 from slamfront.messages import BowStatistics, Features, LoopResult
@@ -86,45 +85,66 @@ def test_greedy_quantises_closer_than_nndr_on_the_same_frames() -> None:
     assert stats[-1].other_rule == "nndr" and greedy < nndr
 
 
-class ModelledClock:
-    """Seconds as the cost model says: ``base + per_place * |WM|`` from a frame's start."""
-
-    def __init__(self, detector: BowBayes, base: float, per_place: float) -> None:
-        self.detector, self.base, self.per_place = detector, base, per_place
-        self.now, self.calls = 0.0, 0
-
-    def new_frame(self) -> None:
-        self.now += 10.0
-        self.calls = 0
-
-    def __call__(self) -> float:
-        self.calls += 1
-        if self.calls == 1:
-            return self.now
-        return self.now + self.base + self.per_place * self.detector._memory.n_wm
-
-
-def test_working_memory_never_exceeds_its_bound_on_a_long_stream() -> None:
-    """1,200 frames, three laps; every frame's time is base + per_place * |WM|."""
-    budget, base, per_place = 0.5, 0.1, 0.005
-    detector = BowBayes(_config(time_budget_s=budget, stm_size=10, max_retrieved=2))
-    clock = ModelledClock(detector, base, per_place)
-    detector.clock = clock
-    within = int((budget - base) / per_place + 1e-9)  # N*: the largest WM searched within budget
-    bound = working_memory_bound(budget, base, per_place, 2)
-    sizes, transferred, retrieved = [], 0, 0
+def test_a_modelled_budget_bounds_the_searched_words_on_a_long_stream() -> None:
+    """1,200 frames, three laps; the budget is compared with the linear time model (deterministic)."""
+    per_comparison = 1e-7
+    budget = 0.04
+    detector = BowBayes(_config(time_budget_s=budget, stm_size=10, max_retrieved=2, time_model="linear",
+                                model_base_s=0.0, model_comparison_s=per_comparison, model_place_s=0.0))
+    searched, modelled, transferred, retrieved, arrivals = [], [], 0, 0, []
     for index, descriptors in FeatureWorld(400, seed=1).stream(laps=3):
-        clock.new_frame()
+        before = detector._vocabularies.main.n_active if detector._vocabularies else 0  # type: ignore[union-attr]
         _, stats = _split(_process(detector, index, descriptors))
-        sizes.append(stats.wm_size)
+        searched.append(before)
+        modelled.append(stats.modelled_seconds)
         transferred += stats.transferred
         retrieved += stats.retrieved
-        # words of LTM places leave the search: the vocabulary scanned stays bounded too
-        assert stats.active_words <= (within + 10 + 3) * 40
-    assert max(sizes) <= within <= bound
-    assert max(sizes) == within  # the budget binds: WM grows to it and stays there
-    assert transferred > 900 and retrieved > 0
+        arrivals.append(stats.new_words + 40 * stats.retrieved)
+    within = budget / (per_comparison * 40)  # words one frame of 40 features may search within budget
+    assert max(searched) <= within + max(arrivals)
+    assert np.max(modelled) <= budget + per_comparison * 40 * max(arrivals)
+    assert max(searched) > within  # the budget binds
+    assert transferred > 500 and retrieved > 0
     assert detector.statistics()["n_places_transferred"] == transferred
+    # the same stream gives the same transfers: the model does not read the clock
+    small = detector.config.model_copy(update={"time_budget_s": 0.004})
+    runs = []
+    for _ in range(2):
+        repeated = BowBayes(small)
+        runs.append([_split(_process(repeated, i, d))[1].transferred for i, d in FeatureWorld(100, seed=1).stream(2)])
+    assert runs[0] == runs[1] and sum(runs[0]) > 100
+
+
+def test_merged_frames_are_searched_by_default_and_repeat_on_request() -> None:
+    world = FeatureWorld(30, seed=3)
+    frames = [(index, world.observe(index // 3 % 30)) for index in range(180)]  # each place seen 3 times in a row
+    for mode in ("search", "repeat"):
+        detector = BowBayes(_config(merged_frames=mode, similarity_threshold=0.3))
+        outputs = [_split(_process(detector, index, d)) for index, d in frames]
+        merged = [r for r, s in outputs if s.merged]
+        assert len(merged) > 60
+        assert all(r.searched for r, s in outputs if not s.merged)
+        if mode == "search":
+            assert all(r.searched for r in merged)
+        else:
+            assert not any(r.searched for r in merged)
+            assert all("repeats frame" in r.reason for r in merged[5:])
+    # a place lists its frames: the match of a revisit stands for all of them
+    revisit = [r for r, s in outputs if r.accepted and r.match_frames is not None]
+    assert revisit and all(len(r.match_frames) == 3 for r in revisit)  # type: ignore[arg-type]
+    assert all(r.match_frames[0] <= r.match <= r.match_frames[-1] for r in revisit)  # type: ignore[index]
+
+
+def test_an_accepted_loop_hands_the_old_places_weight_to_the_new_one() -> None:
+    world = FeatureWorld(40, seed=6)
+    detector = BowBayes(_config(similarity_threshold=0.3))
+    for index in range(240):
+        _, stats = _split(_process(detector, index, world.observe(index // 3 % 40)))
+    memory = detector._memory
+    assert memory.last_loop >= 40  # a place of the second lap closed a loop
+    old = [place for place in detector._places if place < 40]
+    assert sum(memory.weight(p) == 0 for p in old) > 30  # their weight moved to the second lap's places
+    assert sum(memory.weight(p) for p in detector._places if p >= 40) >= 40
 
 
 def test_blank_frames_give_no_answer_not_a_crash() -> None:
@@ -165,7 +185,7 @@ def test_recipe_level_checks() -> None:
         BowBayes(BowBayes.Config()).check({"descriptor": DownsampledImage(DownsampledImage.Config())})
     defaults = BowBayes(BowBayes.Config())
     defaults.check({"descriptor": orb})
-    assert defaults.thresholds().nd_low == 34.0 and defaults.thresholds().nd_high == 55.0
+    assert defaults.thresholds().nd_low == 0.6875 and defaults.thresholds().nd_high == 55.0
     with pytest.raises(PluginError, match="no default T_ND1/T_ND2"):
         BowBayes(BowBayes.Config()).thresholds()
     with pytest.raises(ValidationError, match="SURF is patented"):

@@ -60,7 +60,8 @@ def test_unknown_key_written_in_the_recipe_file_gets_a_suggestion(cli, write_rec
 
 def test_unknown_key_with_nothing_close_lists_the_known_ones(cli, write_recipe) -> None:
     line = _one_line_error(*cli("run", write_recipe(small_synthetic_recipe()), "--set", "eval.zzz=1")[::2])
-    assert "eval.zzz: unknown key; known keys: plots, recall_at_k, retrieval_max_k, tolerances" in line
+    assert ("eval.zzz: unknown key; known keys: loop_scoring, plots, recall_at_k, retrieval_max_k, tolerances, "
+            "unsearched_frames") in line
 
 
 def test_unknown_sweep_key_gets_a_suggestion(cli, tmp_path: Path) -> None:

@@ -43,17 +43,24 @@ def test_two_updates_against_hand_computed_posteriors() -> None:
     assert step.best == 0 and not step.accepted
 
     # step 2: place 3 enters WM (no posterior at t-1). Prediction of place i:
-    # 0.1/4 * p(-1) + sum_j p(j) * 0.9 f(i - j) / sum_{k=-16..16} f(k), f ~ N(0, 1.6^2)
+    # 0.1/4 * p(-1) + sum_j p(j) * 0.9 f(i - j) / sum_{k=-16..16} f(k), f ~ N(0, 1.6^2);
+    # what j's window puts outside places 0..3 stays on j (RTAB-Map's transition)
+    window = BayesParameters().window()
+    previous, previous_no_loop = step.posterior, step.no_loop
+    expected = np.full(4, 0.1 / 4 * previous_no_loop)
+    for j in range(3):
+        for i in range(4):
+            expected[i] += previous[j] * window[16 + i - j]
+        expected[j] += previous[j] * (0.9 - sum(window[16 + i - j] for i in range(4)))
     step = bayes.update(np.array([0, 1, 2, 3]), np.array([0.05, 0.6, 0.1, 0.05]))
-    np.testing.assert_allclose(
-        step.prediction, [0.03289833497316482, 0.03397328292386468, 0.03225945848340934, 0.029009790494801856]
-    )
+    np.testing.assert_allclose(step.prediction, expected)
     assert step.prediction_no_loop == pytest.approx(0.9 * 0.9476867620348833 + 0.1 * (1 - 0.9476867620348833))
-    np.testing.assert_allclose(
-        step.posterior, [0.0187439095486834, 0.035631149846600256, 0.01837990805296864, 0.01652840149826318]
-    )
-    assert step.no_loop == pytest.approx(0.9107166310534845)
-    assert step.best == 1 and step.best_probability == pytest.approx(0.035631149846600256)
+    assert step.prediction.sum() + step.prediction_no_loop == pytest.approx(1.0)
+    observed = step.likelihood
+    unnormalised = np.r_[observed.loop * expected, observed.no_loop * step.prediction_no_loop]
+    np.testing.assert_allclose(step.posterior, unnormalised[:4] / unnormalised.sum())
+    assert step.no_loop == pytest.approx(unnormalised[4] / unnormalised.sum())
+    assert step.best == 1 and step.best_probability == pytest.approx(step.posterior.max())
     assert step.posterior.sum() + step.no_loop == pytest.approx(1.0)
 
 
@@ -67,8 +74,33 @@ def test_transition_window_sums_to_0_9_and_follows_the_gaussian() -> None:
     previous = 1.0 - bayes.no_loop
     assert no_loop == pytest.approx(0.9 * bayes.no_loop + 0.1 * previous)
     spread = prior - 0.1 / 4 * bayes.no_loop
-    np.testing.assert_allclose(spread[:3], previous * window[15:18])
+    # places 9 and 11 get their share; what falls on ids 0..8 and 12..26 (not searched) stays on 10
+    np.testing.assert_allclose(spread[:3], previous * (window[15:18] + [0.0, 0.9 - window[15:18].sum(), 0.0]))
     assert spread[3] == pytest.approx(0.0)  # 30 places away: beyond the window
+    assert prior.sum() + no_loop == pytest.approx(1.0)
+
+
+def test_mass_of_places_outside_working_memory_is_renormalised_not_dropped() -> None:
+    """Whatever leaves or enters WM between steps, the prediction sums to 1 (RTAB-Map's transition)."""
+    rng = np.random.default_rng(5)
+    bayes = BayesFilter()
+    places = np.arange(60)
+    working = places[rng.random(60) < 0.7]
+    for _ in range(40):
+        similarities = rng.random(len(working)) * 0.2
+        similarities[rng.integers(len(working))] = 0.9
+        step = bayes.update(working, similarities)
+        assert step.prediction.sum() + step.prediction_no_loop == pytest.approx(1.0)
+        assert step.posterior.sum() + step.no_loop == pytest.approx(1.0)
+        working = places[rng.random(60) < 0.7]  # some places leave WM, others come back
+    # a hypothesis that left WM takes its mass away; the remaining belief keeps its proportions
+    bayes = BayesFilter()
+    bayes.update(np.array([0, 40]), np.array([0.9, 0.1]))
+    before = bayes._posterior.copy(), bayes.no_loop
+    prior, no_loop = bayes.predict(np.array([40]))
+    kept = before[0][1] / (before[0][1] + before[1])
+    assert no_loop == pytest.approx(0.9 * (1 - kept) + 0.1 * kept)
+    assert prior[0] == pytest.approx(0.1 * (1 - kept) + 0.9 * kept)  # all of its window stays on 40
 
 
 def test_a_consistent_revisit_is_accepted_and_a_lost_one_released() -> None:

@@ -10,11 +10,12 @@ from slamfront.core.errors import CoreError
 from slamfront.core.vocabulary import OnlineVocabulary, VocabularyThresholds, becomes_word, ratio
 
 # Seed fig. 2(a): two words w1, w2 of V_{t-1}; features P1..P3 in a tight cluster well
-# away from w1, P4 far from both. Units are the picture's; T_ND2 sits between the
+# away from w1, P4 far from both. Coordinates are the picture's; thresholds are on
+# squared distances (the vocabulary's unit for L2): T_ND2 = 4.6^2 sits between the
 # cluster's distances to w1 (4.2-4.8) and P4's (9.4).
 W1, W2 = (0.0, 0.0), (10.0, 0.0)
 P1, P2, P3, P4 = (3.0, 3.0), (3.3, 3.4), (3.6, 3.1), (5.0, 8.0)
-FIG2 = VocabularyThresholds(nndr=0.8, nd_low=0.1, nd_high=4.6)
+FIG2 = VocabularyThresholds(nndr=0.8, nd_low=0.1**2, nd_high=4.6**2)
 
 
 def _fig2_vocabulary() -> OnlineVocabulary:
@@ -35,8 +36,10 @@ def test_fig2_nndr_quantises_the_cluster_to_w1_and_greedy_gives_it_a_word() -> N
     assert greedy.order.tolist() == [3, 2, 1, 0]
     assert greedy.new_words.tolist() == [2, 3]
     assert greedy.words.tolist() == [3, 3, 3, 2]
-    # seed eq. 15: the cluster's error under greedy is far below NNDR's
-    d = np.linalg.norm
+    # seed eq. 15: the cluster's error under greedy is far below NNDR's (squared distances)
+    def d(v: object) -> float:
+        return float(np.sum(np.square(v)))
+
     assert greedy.distances[:2].mean() == pytest.approx((d(np.subtract(P1, P3)) + d(np.subtract(P2, P3))) / 2, rel=1e-5)
     assert nndr.distances[:3].mean() == pytest.approx(np.mean([d(P1), d(P2), d(P3)]), rel=1e-5)
     assert greedy.distances[:2].mean() < nndr.distances[:3].mean()
@@ -170,3 +173,21 @@ def test_nearest_two_matches_brute_force(metric: str) -> None:
     assert np.all(np.isinf(one_d2)) and one_i.tolist() == [0, 0, 0]
     none = nearest_two(queries[:3], rows[:0], metric)  # type: ignore[arg-type]
     assert np.all(np.isinf(none[0])) and none[2].tolist() == [-1, -1, -1]
+
+
+def test_l2_distances_and_thresholds_are_squared() -> None:
+    """T_NNDR compares squared distances, as RTAB-Map: a plain ratio of 0.85 is 0.72 squared, below 0.8."""
+    t = VocabularyThresholds(nndr=0.8, nd_low=0.0, nd_high=np.inf)
+    vocabulary = OnlineVocabulary("l2", 1)
+    vocabulary.retain(vocabulary.update(np.array([[0.0], [20.0]], np.float32), "nndr", t).words)
+    # ND = 8.5 to word 0, NND = 11.5 to word 1: returned squared
+    feature = np.array([[8.5]], np.float32)
+    nd, nnd, word = vocabulary.nearest(feature)
+    assert nd[0] == pytest.approx(8.5**2) and nnd[0] == pytest.approx(11.5**2) and word[0] == 0
+    # a plain ratio of 0.85 (ND 9.19, NND 10.81): a word under a plain 0.8 test, not under the squared one
+    made = vocabulary.update(np.array([[9.19]], np.float32), "nndr", t)
+    assert len(made.new_words) == 0 and made.distances[0] == pytest.approx(9.19**2, rel=1e-5)
+    assert (9.19 / 10.81) > 0.8 > (9.19 / 10.81) ** 2
+    greedy = vocabulary.update(np.array([[9.19]], np.float32), "greedy", VocabularyThresholds(0.8, 1.0, 80.0))
+    assert len(greedy.new_words) == 1  # 9.19^2 = 84.5 > T_ND2 = 80: a word by distance alone
+    assert greedy.decided_by.tolist() == [1]

@@ -43,14 +43,16 @@ def _results(outputs) -> dict[int, LoopResult]:  # type: ignore[no-untyped-def]
     return {r.frame: r for r in results}
 
 
-def test_every_query_frame_is_answered_once_online_and_correctly() -> None:
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_every_query_frame_is_answered_once_online_and_correctly(mode: str) -> None:
     vectors, traversals, n_reference = _paired(n_places=40)
-    outputs, timeline, detector = _detect(vectors, traversals)
+    outputs, timeline, detector = _detect(vectors, traversals, mode=mode)
     results = _results(outputs)
     assert sorted(results) == list(range(n_reference, len(vectors)))
-    # online: most answers come out while frames arrive, not at the end
+    # online: most answers come out while frames arrive, not at the end (frames mode answers
+    # each sequence when the next one is compared: the last one at the end)
     during = sum(len([m for m in produced if isinstance(m, LoopResult)]) for frame, produced in timeline if frame >= 0)
-    assert during >= 0.8 * len(results)
+    assert during >= 0.75 * len(results)
     # an answer never comes before its query frame arrived
     for frame, produced in timeline:
         for message in produced:
@@ -60,13 +62,16 @@ def test_every_query_frame_is_answered_once_online_and_correctly() -> None:
     assert np.mean(correct) == 1.0 and len(correct) == len(results)
     assert all(0.0 <= r.confidence <= 1.0 for r in results.values())
     stats = detector.statistics()
-    assert stats["n_searches"] == 40 // 5 and stats["n_validated_by_next"] == 1
-    assert stats["n_consistent"] == 7
+    # faithful: the first sequence waits for the second; frames: each is answered with the next
+    validated = 1 if mode == "faithful" else 7
+    assert stats["n_searches"] == 40 // 5 and stats["n_validated_by_next"] == validated
+    assert stats["n_consistent"] == 8 - validated
+    assert stats["n_distances"] == stats["n_distances_search"] + stats["n_distances_sequences"] > 0
 
 
 def test_decisions_record_the_branch_and_the_candidates() -> None:
     vectors, traversals, _ = _paired(n_places=30)
-    outputs, _, _ = _detect(vectors, traversals)
+    outputs, _, _ = _detect(vectors, traversals, mode="faithful")
     decisions = [m for m in outputs if isinstance(m, SequenceDecision)]
     assert [d.branch for d in decisions][:2] == ["validated_by_next", "consistent"]
     first = decisions[0]
@@ -83,7 +88,7 @@ def test_a_wrong_jump_waits_and_is_rebuilt() -> None:
     query = noisy(np.concatenate([reference[:20], detour, reference[30:60]]), 0.1)
     vectors = np.concatenate([reference, query])
     traversals = ["reference"] * len(reference) + ["query"] * len(query)
-    outputs, _, detector = _detect(vectors, traversals)
+    outputs, _, detector = _detect(vectors, traversals, mode="faithful")
     decisions = {d.iteration: d for d in outputs if isinstance(d, SequenceDecision)}
     assert decisions[3].branch == "rebuilt"  # the detour: inconsistent with iterations 2 and 4
     assert (decisions[3].first, decisions[3].last) == (5, 14)  # F*,2 = (5, 9) and the 5 places after it
@@ -99,7 +104,7 @@ def test_map_too_small_is_a_no_answer_for_every_query_frame() -> None:
     vectors, traversals, n_reference = _paired(n_places=3, query_places=3)
     vectors = np.concatenate([vectors, noisy(route_descriptors(10, 2, seed=5), 0.1)])
     traversals = traversals + ["query"] * 20
-    outputs, _, _ = _detect(vectors, traversals)
+    outputs, _, _ = _detect(vectors, traversals, mode="faithful")
     results = _results(outputs)
     assert sorted(results) == list(range(n_reference, len(vectors)))
     assert all(r.match == -1 and not r.accepted for r in results.values())
@@ -107,18 +112,20 @@ def test_map_too_small_is_a_no_answer_for_every_query_frame() -> None:
     assert "the map has 3 places, not more than rho=5" in reasons
 
 
-def test_a_query_traversal_shorter_than_rho_places_gets_no_answer() -> None:
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_a_query_traversal_shorter_than_rho_places_gets_no_answer(mode: str) -> None:
     vectors, traversals, n_reference = _paired(n_places=20, query_places=3)
-    outputs, _, _ = _detect(vectors, traversals)
+    outputs, _, _ = _detect(vectors, traversals, mode=mode)
     results = _results(outputs)
     assert len(results) == 6
     assert {r.reason for r in results.values()} == {"traversal ended before its query sequence was complete"}
 
 
-def test_featureless_query_frames_get_no_answer() -> None:
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_featureless_query_frames_get_no_answer(mode: str) -> None:
     vectors, traversals, n_reference = _paired(n_places=20)
     vectors[n_reference + 12] = 0.0  # a black frame in the query
-    outputs, _, _ = _detect(vectors, traversals)
+    outputs, _, _ = _detect(vectors, traversals, mode=mode)
     results = _results(outputs)
     dark = results[n_reference + 12]
     assert dark.match == -1 and dark.reason.startswith("featureless")
@@ -128,16 +135,20 @@ def test_featureless_query_frames_get_no_answer() -> None:
     assert sum(r.match >= 0 for r in others) >= 0.9 * len(others)
 
 
-def test_stream_revisits_are_found_against_earlier_laps() -> None:
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_stream_revisits_are_found_against_earlier_laps(mode: str) -> None:
     lap = route_descriptors(60, FRAMES_PER_PLACE, seed=2)
     vectors = np.concatenate([lap, noisy(lap, 0.1)])
     traversals = ["stream"] * len(vectors)
-    outputs, _, detector = _detect(vectors, traversals, exclude_recent_places=10)
+    outputs, _, detector = _detect(vectors, traversals, exclude_recent_places=10, mode=mode)
     results = _results(outputs)
     n = len(lap)
     second = [results[f] for f in range(n, 2 * n) if f in results and results[f].match >= 0]
     assert len(second) >= 0.8 * n
-    assert np.mean([abs(r.match - (r.frame - n)) <= 1 for r in second]) >= 0.95
+    assert np.mean([abs(r.match - (r.frame - n)) <= 1 for r in second]) >= 0.9
+    # frames mode: the first sequence of the second lap still compares frames of the first
+    # lap's end (excluded from the map); that answer is isolated, with confidence 0
+    assert all(abs(r.match - (r.frame - n)) <= 1 for r in second if r.confidence > 0)
     first_lap = [results[f].confidence for f in range(n) if f in results and results[f].match >= 0]
     assert max(first_lap) < np.median([r.confidence for r in second])  # no place to revisit yet: low confidence
     assert detector.statistics()["n_map_too_small"] >= 1

@@ -5,21 +5,35 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from slamfront import Frame, StageInputs
 from slamfront.core.vptree import brute_force_knn
-from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap, choose_similarity_threshold, place_sizes
+from slamfront.messages import Features, PlaceAssignment
+from slamfront_plugins.place_maps.hierarchical import (
+    HierarchicalPlaceMap,
+    PlaceThreshold,
+    choose_similarity_threshold,
+    place_sizes,
+)
 from tests.hierarchical_helpers import route_descriptors
 
 
-def _feed(place_map: HierarchicalPlaceMap, vectors: np.ndarray, traversals: list[str]) -> list:
-    from slamfront import Frame, StageInputs
-    from slamfront.messages import Features
-
-    out = []
+def _feed_all(
+    place_map: HierarchicalPlaceMap, vectors: np.ndarray, traversals: list[str], finish: bool = False
+) -> list[tuple[int, list]]:
+    """(frame at which they came out, outputs) for every frame, and -1 for finish()."""
+    timeline = []
     for index, (vector, traversal) in enumerate(zip(vectors, traversals)):
         frame = Frame(index=index, timestamp=float(index), image=np.zeros((2, 2), np.uint8), traversal=traversal)  # type: ignore[arg-type]
         inputs = StageInputs(frame=frame, outputs={"descriptor": [Features(frame=index, vector=vector, metric="l1")]})
-        out += place_map.process(inputs)
-    return out
+        timeline.append((index, list(place_map.process(inputs))))
+    if finish:
+        timeline.append((-1, list(place_map.finish())))
+    return timeline
+
+
+def _feed(place_map: HierarchicalPlaceMap, vectors: np.ndarray, traversals: list[str]) -> list[PlaceAssignment]:
+    return [m for _, out in _feed_all(place_map, vectors, traversals, finish=True) for m in out
+            if isinstance(m, PlaceAssignment)]
 
 
 def test_a_frame_joins_the_place_while_similar_to_its_first_descriptor() -> None:
@@ -88,6 +102,92 @@ def test_choosing_nu_from_a_reference_traversal() -> None:
     nu = choose_similarity_threshold(vectors, frames_per_place=3.0)
     assert place_sizes(vectors, nu).mean() == 3.0
     assert place_sizes(vectors, 0.0).tolist() == [150]  # nu = 0: one place
+
+
+def _nested_route(n_groups: int, seed: int = 0) -> tuple[np.ndarray, list[int], list[int]]:
+    """Descriptors with places at two scales: groups of 6 frames (unrelated to each other),
+    each made of sub-places of 2 frames (close to each other, unlike within a group).
+    Returns (vectors, fine place sizes, coarse place sizes)."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n_groups):
+        base = rng.random(48) ** 4
+        for _ in range(3):  # three sub-places of two near-identical frames
+            sub = base * (1 + 0.6 * rng.random(48))
+            frames += [sub + rng.random(48) * 1e-4 for _ in range(2)]
+    vectors = np.asarray(frames)
+    vectors = (vectors / vectors.sum(axis=1, keepdims=True)).astype(np.float32)
+    return vectors, [2] * (3 * n_groups), [6] * n_groups
+
+
+@pytest.mark.parametrize("scale", ["fine", "coarse"])
+def test_automatic_nu_recovers_known_place_sizes(scale: str) -> None:
+    vectors, fine, coarse = _nested_route(40)
+    sizes = fine if scale == "fine" else coarse
+    nu = choose_similarity_threshold(vectors, frames_per_place=float(np.mean(sizes)))
+    assert place_sizes(vectors, nu).tolist() == sizes
+
+
+def test_automatic_nu_aims_at_the_mean_size_when_no_threshold_gives_it_exactly() -> None:
+    vectors, _, _ = _nested_route(40)
+    mean = {nu: place_sizes(vectors, nu).mean() for nu in np.round(np.arange(0, 1.0005, 0.001), 3)}
+    nu = choose_similarity_threshold(vectors, frames_per_place=4.0)
+    assert abs(mean[round(nu, 3)] - 4.0) == min(abs(m - 4.0) for m in mean.values())
+
+
+def test_paired_runs_choose_nu_from_the_reference_alone_before_the_first_query() -> None:
+    reference, fine, _ = _nested_route(20)
+    queries = [route_descriptors(30, 2, dim=48, seed=s) for s in (1, 2)]
+    chosen = []
+    for query in queries:
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(frames_per_place=2.0))
+        vectors = np.concatenate([reference, query])
+        timeline = _feed_all(place_map, vectors, ["reference"] * len(reference) + ["query"] * len(query))
+        # nothing is placed while the reference arrives; all of it when the first query does
+        assert all(out == [] for frame, out in timeline[: len(reference)])
+        first_query = timeline[len(reference)][1]
+        threshold = first_query[0]
+        assert isinstance(threshold, PlaceThreshold) and threshold.auto
+        assert threshold.calibration_frames == len(reference) and threshold.frames_per_place == 2.0
+        placed = [m.frame for m in first_query[1:]]
+        assert placed == list(range(len(reference) + 1))
+        assert [p.frames for p in place_map.places[: len(fine)]] == [[2 * k, 2 * k + 1] for k in range(len(fine))]
+        stats = place_map.statistics()
+        assert stats["similarity_threshold"] == threshold.threshold and stats["similarity_threshold_frames"] == 120
+        chosen.append(threshold.threshold)
+    assert chosen[0] == chosen[1]  # the queries never enter the choice
+
+
+def test_a_stream_holds_its_first_frames_then_keeps_nu() -> None:
+    vectors, fine, _ = _nested_route(30)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(frames_per_place=2.0, calibration_frames=60))
+    timeline = _feed_all(place_map, vectors, ["stream"] * len(vectors))
+    assert all(out == [] for _, out in timeline[:59])
+    released = timeline[59][1]
+    assert isinstance(released[0], PlaceThreshold) and released[0].calibration_frames == 60
+    assert [m.frame for m in released[1:]] == list(range(60))
+    assert all(len(out) == 1 for _, out in timeline[60:])  # then one assignment per frame, same nu
+    assert [len(p.frames) for p in place_map.places] == fine
+    assert place_map.threshold == choose_similarity_threshold(vectors[:60], 2.0)
+
+
+def test_a_run_shorter_than_the_calibration_is_placed_at_the_end() -> None:
+    vectors, fine, _ = _nested_route(5)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(frames_per_place=2.0, calibration_frames=500))
+    timeline = _feed_all(place_map, vectors, ["stream"] * len(vectors), finish=True)
+    assert all(out == [] for frame, out in timeline if frame >= 0)
+    assert [m.frame for m in timeline[-1][1] if isinstance(m, PlaceAssignment)] == list(range(len(vectors)))
+    assert [len(p.frames) for p in place_map.places] == fine
+
+
+def test_a_given_nu_is_logged_as_given() -> None:
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.8))
+    out = _feed_all(place_map, route_descriptors(3, 2), ["reference"] * 6)
+    threshold = out[0][1][0]
+    assert isinstance(threshold, PlaceThreshold) and not threshold.auto and threshold.threshold == 0.8
+    assert all(len(o) == 1 for _, o in out[1:])
+    with pytest.raises(ValueError, match="auto"):
+        HierarchicalPlaceMap.Config(similarity_threshold=1.5)
 
 
 def test_auto_search_moves_to_a_vp_tree_only_where_it_computes_few_distances(monkeypatch) -> None:  # type: ignore[no-untyped-def]

@@ -568,8 +568,17 @@ def _last_log_line(path: Path) -> str:
 
 def _subprocess_cli(args: list[Any], cwd: Path, **kwargs: Any) -> subprocess.Popen[bytes]:
     env = {**os.environ, **SINGLE_THREADED}
+    setup = kwargs.pop("preexec_fn", None)
+
+    def child_setup() -> None:
+        # Ctrl-C as at a terminal: a suite started in the background (``make test &``) runs with
+        # SIGINT ignored, which the child would inherit, and Python then never raises KeyboardInterrupt
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if setup is not None:
+            setup()
+
     return subprocess.Popen([sys.executable, "-m", "slamfront", *map(str, args)], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kwargs)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=child_setup, **kwargs)
 
 
 def test_sigterm_while_plots_are_drawn(tmp_path: Path) -> None:

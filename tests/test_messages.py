@@ -48,7 +48,8 @@ def test_decode_without_the_class_gives_arrays() -> None:
 
 def test_schema_lists_every_field_and_lookup_by_name() -> None:
     schema = LoopResult.json_schema()
-    assert set(schema["properties"]) == {"frame", "match", "confidence", "accepted", "candidates", "reason"}
+    assert set(schema["properties"]) == {"frame", "match", "confidence", "accepted", "candidates", "reason",
+                                          "match_frames", "searched"}
     assert schema["title"] == "slamfront.LoopResult"
     assert message_class("slamfront.RunMetrics") is RunMetrics
 

@@ -30,10 +30,24 @@ REPLAYED_PIPELINES: dict[str, dict[str, Any]] = {
         "descriptor": {"plugin": "downsampled", "params": {"width": 16, "height": 16}},
         "loop_detector": {"plugin": "nearest_neighbour", "params": {"threshold": 0.1}},
     },
+    # nu chosen from the reference (auto), frame-level mode: the choice is replayed too
     "hierarchical_sequence": {
         "descriptor": {"plugin": "rst_shelo", "params": {"cells_x": 16, "cells_y": 12}},
+        "place_map": {"plugin": "hierarchical"},
+        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3, "sequence_frames": 12}},
+    },
+    "hierarchical_sequence_faithful": {
+        "descriptor": {"plugin": "rst_shelo", "params": {"cells_x": 16, "cells_y": 12}},
         "place_map": {"plugin": "hierarchical", "params": {"similarity_threshold": 0.9}},
-        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3}},
+        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3, "mode": "faithful"}},
+    },
+    # a stream: nu from the first 20 frames, held and placed at once
+    "hierarchical_sequence_stream": {
+        "source_params": {"mode": "stream", "laps": 2, "frames_per_traversal": 30},
+        "descriptor": {"plugin": "rst_shelo", "params": {"cells_x": 16, "cells_y": 12}},
+        "place_map": {"plugin": "hierarchical", "params": {"calibration_frames": 20}},
+        "loop_detector": {"plugin": "hierarchical_sequence",
+                          "params": {"rho": 3, "sequence_frames": 12, "exclude_recent_places": 5}},
     },
     "nearest_neighbour_stream": {
         "source_params": {"mode": "stream", "laps": 2, "frames_per_traversal": 30},

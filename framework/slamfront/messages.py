@@ -333,6 +333,12 @@ class LoopResult(Message):
     """(K,) int64 candidate frame indices, best first (for recall@K), if the detector ranks."""
     reason: str = ""
     """Why there is no answer, when ``match`` is -1."""
+    match_frames: np.ndarray | None = None
+    """(K,) int64 every frame the matched place stands for (it and the frames merged into it),
+    for place scoring (``eval.loop_scoring: place``); None: the match is one frame."""
+    searched: bool = True
+    """False when the detector did not search for this frame but repeated an earlier answer
+    (``eval.unsearched_frames: exclude`` leaves such frames out of the scores)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -612,7 +618,12 @@ class BowStatistics(Message):
     active_words: int
     """Words the nearest-word search scans (those of STM and WM places)."""
     quantisation_error: float
-    """Mean distance of the frame's features to their words (Wang et al. 2017, fig. 6)."""
+    """Mean distance of the frame's features to their words (Wang et al. 2017, fig. 6), in the
+    vocabulary's unit: squared L2 (float descriptors) or bits."""
+    by_ratio_test: int = -1
+    """Features the ratio test ND / NND decided (the rest: ND > T_ND2 or ND < T_ND1); -1: none quantised."""
+    by_nd_high: int = -1
+    """Features that became words because ND > T_ND2, without the ratio test (greedy rule)."""
     update_rule: str = "greedy"
     other_rule: str = ""
     """The other update rule, when the detector also tracks its vocabulary for comparison."""
@@ -635,6 +646,12 @@ class BowStatistics(Message):
     """T_loop: a loop is accepted when ``no_loop_posterior`` is below it."""
     processing_seconds: float = 0.0
     """This frame's detector time (Wang et al. 2017, fig. 9b)."""
+    searched_words: int = 0
+    """Words the nearest-word search scanned for this frame (the time grows with them)."""
+    searched_places: int = 0
+    """Places in working memory when the frame was searched (or would have been)."""
+    modelled_seconds: float = float("nan")
+    """The deterministic time model's seconds for this frame, when the budget is compared with it."""
     time_budget_seconds: float = 0.0
 
 

@@ -80,6 +80,14 @@ class EvalOptions(_Strict):
         description="also score loops at these tolerances (zeta), for sources that support it; "
         "metrics get the suffix _zeta<t>",
     )
+    loop_scoring: Literal["frame", "place"] = Field(
+        "frame", description="frame: a loop report is correct when its match frame is a true match; place: when any "
+        "frame of the matched place is (detectors that merge frames into places list them)",
+    )
+    unsearched_frames: Literal["score", "exclude"] = Field(
+        "score", description="score: a frame the detector answered without searching (repeating an earlier answer) "
+        "counts like any other; exclude: it is left out of the precision-recall curve and the recall's denominator",
+    )
     retrieval_max_k: int = Field(
         20, ge=0, description="descriptor retrieval: recall when a correct reference is among the psi "
         "nearest, psi = 1..this (Rodrigues 2019 figs 4.1/4.2); 0 turns it off",

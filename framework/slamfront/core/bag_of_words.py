@@ -26,7 +26,7 @@ def bag_of(words: Iterable[int]) -> Counter[int]:
 
 
 def similarity(a: Counter[int], b: Counter[int]) -> float:
-    """Seed eq. 5: shared word pairs over the larger bag size (0 when either is empty)."""
+    """Wang et al. 2017 eq. 5: shared word pairs over the larger bag size (0 when either is empty)."""
     size = max(sum(a.values()), sum(b.values()))
     if size == 0:
         return 0.0
@@ -77,7 +77,7 @@ class InvertedIndex:
         return bag
 
     def similarities(self, bag: Counter[int], places: np.ndarray) -> np.ndarray:
-        """(M,) seed eq. 5 similarity of ``bag`` to each of ``places`` (all indexed)."""
+        """(M,) Wang et al. 2017 eq. 5 similarity of ``bag`` to each of ``places`` (all indexed)."""
         pairs: dict[int, int] = {}
         for word, count in bag.items():
             for place, stored in self._postings.get(word, {}).items():

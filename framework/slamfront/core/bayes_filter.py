@@ -1,7 +1,7 @@
 """The discrete Bayes filter over loop-closure hypotheses of Wang et al. 2017 (§1.3, after RTAB-Map).
 
 The state S_t is -1 ("no loop at time t") or the id i of a place in working memory
-("image t closes a loop with place i"). Each step (seed eqs. 6-12):
+("image t closes a loop with place i"). Each step (Wang et al. 2017, eqs. 6-12):
 
 - **prediction** (eqs. 10-11) from the previous posterior:
   ``p(-1 | -1) = 0.9``, ``p(-1 | j) = 0.1``, ``p(i | -1) = 0.1 / M`` (M = number of
@@ -11,6 +11,12 @@ The state S_t is -1 ("no loop at time t") or the id i of a place in working memo
   Gaussian window of j +- 16 normalised to 0.9, is the one consistent with RTAB-Map
   and with the ``j + 16`` that survives. A hypothesis new in working memory had no
   posterior at t-1 (Wang et al. 2017 sets it to 0).
+- **working memory changes** (RTAB-Map's ``BayesFilter``): the previous posterior of
+  places that left working memory is dropped and the rest, with p(-1), renormalised
+  to 1 (RTAB-Map drops it and normalises at the end: the same posterior); the part of
+  j's Gaussian window that falls on ids not in working memory (places in STM or LTM,
+  ids before the first place) goes to j itself, so each column of the transition
+  still gives 0.9 to loops. The prediction always sums to 1.
 - **likelihood** (eqs. 8-9) from the similarities ``sim_i`` of the image to each place,
   with mean mu and standard deviation sigma over the places:
   ``L(i) = (sim_i - sigma) / mu`` if ``sim_i >= mu + sigma`` else 1;
@@ -78,7 +84,7 @@ class Likelihood:
 
 
 def likelihood(similarities: np.ndarray, ignore_zero: bool = False) -> Likelihood:
-    """Seed eqs. 8-9 for the similarities (M,) of the current image to each hypothesis."""
+    """Wang et al. 2017 eqs. 8-9 for the similarities (M,) of the current image to each hypothesis."""
     sims = np.asarray(similarities, dtype=np.float64)
     values = sims[sims > 0] if ignore_zero else sims
     if len(values) == 0:
@@ -140,25 +146,35 @@ class BayesFilter:
         self._no_loop = 1.0
 
     def predict(self, hypotheses: np.ndarray) -> tuple[np.ndarray, float]:
-        """Seed eqs. 10-11: the prior over ``hypotheses`` (sorted place ids) and over -1."""
+        """Wang et al. 2017 eqs. 10-11: the prior over ``hypotheses`` (sorted place ids) and over -1."""
         p = self.parameters
         hypotheses = np.asarray(hypotheses, dtype=np.int64)
         if len(hypotheses) > 1 and np.any(np.diff(hypotheses) <= 0):
             raise CoreError("hypotheses must be sorted, unique place ids")
-        previous_loop = float(self._posterior.sum())
-        no_loop = p.stay_no_loop * self._no_loop + p.loop_to_no_loop * previous_loop
+        # the previous posterior over the places still searched, renormalised with p(-1)
+        kept = np.isin(self._hypotheses, hypotheses)
+        previous_ids, previous = self._hypotheses[kept], self._posterior[kept]
+        total = self._no_loop + float(previous.sum())
+        previous_no_loop = self._no_loop / total if total > 0 else 1.0
+        previous = previous / total if total > 0 else np.zeros(len(previous_ids))
+        no_loop = p.stay_no_loop * previous_no_loop + p.loop_to_no_loop * float(previous.sum())
         if len(hypotheses) == 0:
             return np.zeros(0), no_loop
-        prediction = np.full(len(hypotheses), p.no_loop_to_loop / len(hypotheses) * self._no_loop)
-        if len(self._hypotheses):
+        prediction = np.full(len(hypotheses), p.no_loop_to_loop / len(hypotheses) * previous_no_loop)
+        if len(previous_ids):
             # spread each previous hypothesis j over j +- reach: a convolution on a
-            # dense grid of place ids covering both the old and the new hypotheses
-            lo = int(min(self._hypotheses[0], hypotheses[0])) - p.reach
-            hi = int(max(self._hypotheses[-1], hypotheses[-1])) + p.reach
+            # dense grid of place ids covering the hypotheses and their windows
+            lo = int(hypotheses[0]) - p.reach
+            hi = int(hypotheses[-1]) + p.reach
             grid = np.zeros(hi - lo + 1)
-            grid[self._hypotheses - lo] = self._posterior
-            spread = np.convolve(grid, self._window, mode="same")
-            prediction += spread[hypotheses - lo]
+            grid[previous_ids - lo] = previous
+            prediction += np.convolve(grid, self._window, mode="same")[hypotheses - lo]
+            # what j's window puts on ids that are not hypotheses stays on j (RTAB-Map)
+            searched = np.zeros(hi - lo + 1)
+            searched[hypotheses - lo] = 1.0
+            covered = np.convolve(searched, self._window, mode="same")[previous_ids - lo]
+            at = np.searchsorted(hypotheses, previous_ids)
+            prediction[at] += previous * (self._window.sum() - covered)
         return prediction, no_loop
 
     def update(self, hypotheses: np.ndarray, similarities: np.ndarray) -> BayesStep:

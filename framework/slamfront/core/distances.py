@@ -89,6 +89,23 @@ def pairwise(
     return out
 
 
+def rowwise(a: np.ndarray, b: np.ndarray, metric: Metric) -> np.ndarray:
+    """(N,) float32 distances between ``a[i]`` and ``b[i]`` (both (N, D)): only the pairs
+    asked for, where :func:`pairwise` would compute all N x M. Each distance has the same
+    bits as :func:`pairwise` gives for that pair (same per-row reduction)."""
+    a = np.atleast_2d(a)
+    b = np.atleast_2d(b)
+    if a.shape != b.shape:
+        raise CoreError(f"rowwise distances need arrays of one shape, got {a.shape} and {b.shape}")
+    if metric == "l1":
+        return np.abs(a.astype(np.float32) - b).sum(-1).astype(np.float32, copy=False)
+    if metric == "hamming":
+        if a.dtype != np.uint8 or b.dtype != np.uint8:
+            raise CoreError("hamming distance needs uint8-packed binary descriptors")
+        return _POPCOUNT[np.bitwise_xor(a, b)].sum(-1).astype(np.float32)
+    return np.array([pairwise(x[None, :], y[None, :], metric)[0, 0] for x, y in zip(a, b)], dtype=np.float32)
+
+
 def _compiled_l1(a: np.ndarray, b: np.ndarray, threads: int | None) -> np.ndarray:
     """L1 of two uint8 or two float32 matrices with the compiled kernels (see :func:`pairwise`)."""
     kernels = compiled()

@@ -167,6 +167,32 @@ class LoopGroundTruth:
         out[valid] = stored[j] == asked
         return out
 
+    def subset(self, keep: np.ndarray) -> LoopGroundTruth:
+        """The ground truth of the queries where ``keep`` (Q,) bool is True."""
+        keep = np.asarray(keep, dtype=bool)
+        rows = [self.matches[self.indptr[k] : self.indptr[k + 1]] for k in np.flatnonzero(keep)]
+        return LoopGroundTruth.from_rows(self.queries[keep], rows)
+
+    def is_correct_place(
+        self, frames: np.ndarray, matches: np.ndarray, places: Sequence[np.ndarray | None]
+    ) -> np.ndarray:
+        """(N,) bool: is any frame of the matched place ``places[k]`` a correct match for ``frames[k]``?
+
+        Place scoring: a detector that merges similar frames into one place answers with
+        the place, and the place is the right one when any frame it stands for is.
+        ``places[k]`` None (a detector without places) scores ``matches[k]`` alone;
+        ``matches[k]`` -1 (no answer) is never correct.
+        """
+        matches = np.asarray(matches, dtype=np.int64)
+        out = self.is_correct(frames, matches)
+        rows = self.rows_of(frames)
+        for k, (row, place) in enumerate(zip(rows, places)):
+            if out[k] or row < 0 or matches[k] < 0 or place is None or len(place) == 0:
+                continue
+            correct = self.matches[self.indptr[row] : self.indptr[row + 1]]
+            out[k] = bool(np.isin(np.asarray(place, dtype=np.int64), correct).any())
+        return out
+
     def centre_of(self, frames: np.ndarray) -> np.ndarray:
         """(N,) the middle correct match of each query (for plots); -1 when none."""
         rows = self.rows_of(frames)

@@ -10,23 +10,42 @@ Places live in one of three memories:
   *retrieved* back into WM when a neighbour of theirs becomes the best loop hypothesis.
 
 Each place has a *weight*: how many images were merged into it because they were too
-similar to it (Wang et al. 2017's T_sim filter; RTAB-Map's rehearsal). When the processing time
-of an image exceeds the time budget, the **lowest-weighted, then oldest** places are
-transferred from WM to LTM: one more than entered WM during that image
-(``Memory::forget``: "remove one more than total added during the iteration"), so WM
-shrinks while the budget is exceeded and its size settles where an image takes about
-the budget. Places kept "immune" for the step (the best hypothesis, its neighbours,
-what was just retrieved) are never transferred.
+similar to it (Wang et al. 2017's T_sim filter; RTAB-Map's rehearsal). When a loop is
+accepted, the newer place of the pair takes the older one's weight and the older one
+drops to 0 (``Memory::addLink``): the place the robot is at now carries the location's
+history.
 
-Bound: if an image's time is ``base + per_place * |WM|``, WM at search time never
-exceeds :func:`working_memory_bound` (``N* + 1 + max_retrieved``, N* the largest WM
-within budget), provided WM holds more places than the immune ones.
+**Transfer** (``Memory::forget`` for an incremental vocabulary). When an image took
+longer than the time budget, places move from WM to LTM one at a time, in transfer
+order, until at least as many words have left the nearest-word search as arrived in it
+during the image (the image's new words and those of places retrieved from LTM): the
+searched vocabulary, which is what the time grows with, never grows while the budget
+is exceeded, but it is not brought back under it either: the time hovers at the budget.
+``forget_places: true`` also transfers at least one place more than entered WM during
+the image (RTAB-Map's rule without an incremental vocabulary), so WM shrinks while the
+budget is exceeded and the time settles under it. A place cap (``max_working_memory``) transfers in the same order until WM
+holds no more places than the cap: a deterministic limit for reproducible experiments.
+
+Transfer order (``Memory::getRemovableSignatures``): lowest weight first, then the
+place that entered WM longest ago, then the oldest id. Never transferred:
+
+- places kept *immune* for the step (the best hypothesis and its neighbours within the
+  retrieval radius, what was just retrieved);
+- the *recent* places: the newer place of the last accepted loop and the WM places
+  created after it, while they are more than one and fewer than ``recent_ratio`` of WM
+  (RTAB-Map's ``Mem/RecentWmRatio``, 0.2): after a loop closure the robot is likely to
+  keep following the old path, and the places it laid down since are what connects it.
+
+Bound: with a time that grows with the searched words, an image over budget leaves no
+more words searched than it found, and one within budget adds at most its arrivals, so
+the words searched never exceed those that fit the budget plus one image's arrivals
+(provided WM holds enough places that are not immune or recent).
 """
 
 from __future__ import annotations
 
-import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,37 +67,56 @@ class MemoryParameters:
     """At most this many places brought back from LTM per image."""
     retrieval_radius: int = 3
     """Places within this many ids of the best hypothesis are retrieved and immune."""
+    recent_ratio: float = 0.2
+    """Places created since the last accepted loop are not transferred while they are fewer than this share of WM."""
+    forget_places: bool = False
+    """Over budget, also transfer at least one place more than entered WM (not only as many words as arrived)."""
 
     def __post_init__(self) -> None:
         if self.stm_size < 0 or self.max_working_memory < 0 or self.max_retrieved < 0 or self.retrieval_radius < 0:
             raise CoreError("memory sizes must be >= 0")
         if self.time_budget_s < 0:
             raise CoreError("the time budget must be >= 0")
+        if not 0.0 <= self.recent_ratio <= 1.0:
+            raise CoreError(f"recent_ratio must be in [0, 1], got {self.recent_ratio}")
 
 
-def working_memory_bound(time_budget_s: float, base_s: float, per_place_s: float, max_retrieved: int) -> int:
-    """The largest WM size at search time under the cost model ``base + per_place * |WM|``.
+@dataclass(frozen=True)
+class LinearTimeModel:
+    """A deterministic stand-in for an image's processing time, for reproducible budgets.
 
-    With ``N* = floor((budget - base) / per_place)``, the largest WM searched within
-    budget: a step at or under N* adds at most one place from STM and ``max_retrieved``
-    from LTM; a step over N* transfers one more than it added. So WM at search time
-    stays at most ``N* + 1 + max_retrieved``.
+    ``seconds = base_s + comparison_s * features * words + place_s * places``: the
+    nearest-word search compares every feature with every searched word, and the
+    similarity and Bayes filter touch every WM place. The coefficients are fitted to
+    measured times (``benchmarks/bench_bow_bayes.py``), so a budget in these seconds
+    means about the same as one on the clock, but the same run always gives the same
+    transfers, whatever else the machine is doing.
     """
-    if per_place_s <= 0 or time_budget_s <= 0:
-        raise CoreError("the bound needs a positive time budget and cost per place")
-    within = max(0, math.floor((time_budget_s - base_s) / per_place_s + 1e-9))  # 0.65 / 0.002 is 324.99...
-    return within + 1 + max_retrieved
+
+    base_s: float = 0.0
+    comparison_s: float = 0.0
+    place_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if min(self.base_s, self.comparison_s, self.place_s) < 0:
+            raise CoreError("time model coefficients must be >= 0")
+
+    def seconds(self, features: int, words: int, places: int) -> float:
+        """Modelled seconds of an image with ``features`` features, ``words`` searched words, ``places`` in WM."""
+        return self.base_s + self.comparison_s * features * words + self.place_s * places
 
 
 class MemoryManager:
-    """Which memory each place is in, and the weights that decide transfers."""
+    """Which memory each place is in, and the weights and ages that order transfers."""
 
     def __init__(self, parameters: MemoryParameters | None = None) -> None:
         self.parameters = parameters or MemoryParameters()
         self._stm: deque[int] = deque()
-        self._wm: set[int] = set()
+        self._wm: dict[int, int] = {}  # place -> when it (last) entered WM, a step count
         self._ltm: set[int] = set()
         self._weights: dict[int, int] = {}
+        self._entries = 0
+        self._last_loop = -1  # the newer place of the last accepted loop (RTAB-Map's last global closure)
 
     # --- state --------------------------------------------------------------------
 
@@ -111,6 +149,11 @@ class MemoryManager:
     def weight(self, place: int) -> int:
         return self._weights[place]
 
+    @property
+    def last_loop(self) -> int:
+        """The newer place of the last accepted loop, -1 before the first."""
+        return self._last_loop
+
     # --- changes ------------------------------------------------------------------
 
     def add(self, place: int) -> list[int]:
@@ -121,21 +164,31 @@ class MemoryManager:
         self._stm.append(place)
         moved = []
         while len(self._stm) > self.parameters.stm_size:
-            oldest = self._stm.popleft()
-            self._wm.add(oldest)
-            moved.append(oldest)
+            moved.append(self._enter_working(self._stm.popleft()))
         return moved
 
     def flush(self) -> list[int]:
         """Move every STM place to WM (the reference traversal is over)."""
-        moved = list(self._stm)
-        self._wm.update(moved)
+        moved = [self._enter_working(place) for place in self._stm]
         self._stm.clear()
         return moved
 
     def merge(self, place: int) -> None:
         """An image too similar to ``place`` was merged into it: its weight grows."""
         self._weights[place] += 1
+
+    def close_loop(self, current: int, matched: int) -> None:
+        """An accepted loop between ``current`` and ``matched``: the newer takes the older's weight.
+
+        RTAB-Map's ``Memory::addLink`` for a global loop closure; the newer place also
+        starts the recent stretch that :meth:`transfer_order` protects.
+        """
+        if current == matched:
+            return
+        newer, older = max(current, matched), min(current, matched)
+        self._weights[newer] += self._weights[older]
+        self._weights[older] = 0
+        self._last_loop = newer
 
     def retrieve(self, centre: int) -> list[int]:
         """Bring LTM neighbours of ``centre`` (ids within the radius, nearest first) back to WM."""
@@ -147,7 +200,7 @@ class MemoryManager:
                     found.append(place)
         for place in found:
             self._ltm.discard(place)
-            self._wm.add(place)
+            self._enter_working(place)
         return found
 
     def immune_around(self, centre: int) -> set[int]:
@@ -155,25 +208,63 @@ class MemoryManager:
         radius = self.parameters.retrieval_radius
         return {place for place in range(centre - radius, centre + radius + 1) if place in self._wm}
 
-    def transfer(self, elapsed_s: float, entered: int, immune: set[int]) -> list[int]:
+    def recent(self) -> set[int]:
+        """WM places protected as recent: the last loop's newer place and those created after it.
+
+        The stretch is protected only while it holds more than one place and fewer than
+        ``recent_ratio`` of WM (RTAB-Map's ``getRemovableSignatures``); the loop's place
+        itself always is, once it has left the STM.
+        """
+        if self._last_loop not in self._wm:
+            return set()
+        stretch = {place for place in self._wm if place >= self._last_loop}
+        if 1 < len(stretch) < self.parameters.recent_ratio * len(self._wm):
+            return stretch
+        return {self._last_loop}
+
+    def transfer_order(self, immune: set[int]) -> list[int]:
+        """The WM places that may be transferred, first to go first: lowest weight, longest in WM, oldest."""
+        protected = immune | self.recent()
+        return sorted(
+            (place for place in self._wm if place not in protected),
+            key=lambda place: (self._weights[place], self._wm[place], place),
+        )
+
+    def transfer(
+        self, elapsed_s: float, words_arrived: int, immune: set[int], release: Callable[[int], int],
+        places_entered: int = 0,
+    ) -> list[int]:
         """Move places from WM to LTM if this image was over budget or WM is over its cap.
 
-        :param elapsed_s: how long the image took.
-        :param entered: places that entered WM during the image (from STM or LTM).
-        :param immune: places that must stay.
+        :param elapsed_s: how long the image took (measured, or modelled).
+        :param words_arrived: words that joined the nearest-word search during the image.
+        :param immune: places that must stay this step.
+        :param release: called with each transferred place as it goes; returns how many
+            words left the search with it (those no place still in STM or WM uses).
+        :param places_entered: places that entered WM during the image (from STM or LTM);
+            with ``forget_places``, at least one more leaves.
         :returns: the transferred places, in transfer order.
         """
         p = self.parameters
-        count = 0
-        if p.time_budget_s > 0 and elapsed_s > p.time_budget_s:
-            count = entered + 1
-        if p.max_working_memory > 0:
-            count = max(count, len(self._wm) - p.max_working_memory)
-        if count <= 0:
+        over_budget = p.time_budget_s > 0 and elapsed_s > p.time_budget_s
+        over_cap = p.max_working_memory > 0 and len(self._wm) > p.max_working_memory
+        if not over_budget and not over_cap:
             return []
-        candidates = sorted((self._weights[place], place) for place in self._wm if place not in immune)
-        chosen = [place for _, place in candidates[:count]]
-        for place in chosen:
-            self._wm.discard(place)
+        transferred: list[int] = []
+        words_left = 0
+        places = places_entered + 1 if p.forget_places else 0
+        for place in self.transfer_order(immune):
+            budget_done = not over_budget or (words_left >= words_arrived and len(transferred) >= places)
+            cap_done = p.max_working_memory == 0 or len(self._wm) <= p.max_working_memory
+            if budget_done and cap_done:
+                break
+            del self._wm[place]
             self._ltm.add(place)
-        return chosen
+            transferred.append(place)
+            words_left += release(place)
+        return transferred
+
+    def _enter_working(self, place: int) -> int:
+        self._entries += 1
+        self._wm[place] = self._entries
+        return place

@@ -15,7 +15,14 @@ which features become new words:
     far from this image, and: ``ND > T_ND2`` -> new word; ``ND < T_ND1`` -> nearest
     word; otherwise new word iff ``ND / NND > T_NNDR``.
 
-Distances are plain L2 (float descriptors) or Hamming bits (uint8-packed binary ones).
+**Units.** Every distance here (ND, NND, the thresholds, the quantisation error) is in
+the vocabulary's one unit: *squared* L2 for float descriptors, as the nearest-neighbour
+search of RTAB-Map (FLANN) returns it and as Wang et al. 2017's SURF thresholds are
+given (T_ND1 = 0.001, T_ND2 = 0.08), and differing bits for uint8-packed binary ones
+(the Hamming distance of two bit vectors *is* their squared L2 distance, so the same
+ratios mean the same thing). T_NNDR therefore compares squared distances, as RTAB-Map
+does: 0.8 on squared distances is 0.894 on plain ones.
+
 Without a second neighbour (an empty or one-word vocabulary) the ratio test cannot
 vouch that the nearest word is distinctive, so it counts as failed (``ND / NND = 1``)
 and the feature becomes a word, as in RTAB-Map's ``VWDictionary``. Wang et al. 2017's
@@ -49,9 +56,9 @@ UPDATE_RULES: tuple[UpdateRule, ...] = ("greedy", "nndr")
 
 @dataclass(frozen=True)
 class VocabularyThresholds:
-    """The update rules' thresholds, in the descriptor's own distance units.
+    """The update rules' thresholds, in the vocabulary's unit (squared L2, or bits: see the module docstring).
 
-    :ivar nndr: T_NNDR, the ratio ND / NND above which a feature becomes a new word.
+    :ivar nndr: T_NNDR, the ratio ND / NND (of squared distances) above which a feature becomes a new word.
     :ivar nd_low: T_ND1 (greedy only): below this ND the nearest word always represents it.
     :ivar nd_high: T_ND2 (greedy only): above this ND the feature always becomes a word.
     """
@@ -73,15 +80,20 @@ class Quantisation:
 
     :ivar words: (N,) int64 word id of each feature, in the input order.
     :ivar distances: (N,) float64 distance of each feature to its word (0 for a feature
-        that became a word itself): the quantisation error.
+        that became a word itself): the quantisation error, in the vocabulary's unit
+        (squared L2, or bits).
     :ivar new_words: (K,) int64 ids of the words this image added, in creation order.
     :ivar order: (N,) int64 the order the features were processed in.
+    :ivar decided_by: (N,) int8 which test decided each feature (:data:`BY_RATIO`,
+        :data:`BY_ND_HIGH`, :data:`BY_ND_LOW`): how much of the greedy rule is the ratio
+        test and how much a plain distance threshold.
     """
 
     words: np.ndarray
     distances: np.ndarray
     new_words: np.ndarray
     order: np.ndarray
+    decided_by: np.ndarray
 
     @property
     def mean_error(self) -> float:
@@ -96,14 +108,24 @@ def ratio(nd: float, nnd: float) -> float:
     return nd / nnd if nnd > 0 else 0.0
 
 
-def becomes_word(rule: UpdateRule, nd: float, nnd: float, thresholds: VocabularyThresholds) -> bool:
-    """Wang et al. 2017's decision for one feature (algorithm 2 line 6; algorithm 3 lines 9-17)."""
+BY_RATIO, BY_ND_HIGH, BY_ND_LOW = 0, 1, -1
+"""Which test decided a feature: the ratio ND / NND, ND > T_ND2 (a word), ND < T_ND1 (the nearest word)."""
+
+
+def decide(rule: UpdateRule, nd: float, nnd: float, thresholds: VocabularyThresholds) -> tuple[bool, int]:
+    """Wang et al. 2017's decision for one feature (algorithm 2 line 6; algorithm 3 lines 9-17),
+    and which test made it (:data:`BY_RATIO`, :data:`BY_ND_HIGH`, :data:`BY_ND_LOW`)."""
     if rule == "greedy":
         if nd > thresholds.nd_high:
-            return True
+            return True, BY_ND_HIGH
         if nd < thresholds.nd_low:
-            return False
-    return ratio(nd, nnd) > thresholds.nndr
+            return False, BY_ND_LOW
+    return ratio(nd, nnd) > thresholds.nndr, BY_RATIO
+
+
+def becomes_word(rule: UpdateRule, nd: float, nnd: float, thresholds: VocabularyThresholds) -> bool:
+    """Whether one feature becomes a new word (see :func:`decide`)."""
+    return decide(rule, nd, nnd, thresholds)[0]
 
 
 class OnlineVocabulary:
@@ -117,6 +139,8 @@ class OnlineVocabulary:
         if metric not in ("l2", "hamming"):
             raise CoreError(f"an online vocabulary needs l2 or hamming descriptors, not {metric!r}")
         self.metric = metric
+        self.squared = metric == "l2"
+        """Distances are squared L2 (float descriptors); bits are already in that unit."""
         self.length = length
         self.dtype = np.dtype(np.uint8 if metric == "hamming" else np.float32)
         self._words = np.empty((capacity, length), self.dtype)  # every word, by id
@@ -160,11 +184,14 @@ class OnlineVocabulary:
             )
 
     def nearest(self, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ND, NND, nearest word id) of each descriptor among the active words."""
+        """(ND, NND, nearest word id) of each descriptor among the active words, ND and NND in the vocabulary's unit."""
         self.check(descriptors)
         nd, nnd, row = nearest_two(descriptors, self._active[: self._n_active], self.metric)
         word = np.where(row >= 0, self._active_ids[np.maximum(row, 0)], -1)
-        return nd, nnd, word
+        return self._in_unit(nd), self._in_unit(nnd), word
+
+    def _in_unit(self, distances: np.ndarray) -> np.ndarray:
+        return np.square(distances) if self.squared else distances
 
     def update(self, descriptors: np.ndarray, rule: UpdateRule, thresholds: VocabularyThresholds) -> Quantisation:
         """Quantise one image's features, adding new words by ``rule``.
@@ -182,19 +209,21 @@ class OnlineVocabulary:
         order = np.argsort(-nd0, kind="stable") if rule == "greedy" else np.arange(n)
         # distances among this image's features: a feature that becomes a word is a
         # column here, so the running two nearest new words cost O(N) per new word
-        among = pairwise(descriptors, descriptors, self.metric).astype(np.float64) if n else np.zeros((0, 0))
+        among = self._in_unit(pairwise(descriptors, descriptors, self.metric).astype(np.float64)) if n else np.zeros((0, 0))
         new_d1 = np.full(n, np.inf)
         new_d2 = np.full(n, np.inf)
         new_w1 = np.full(n, -1, np.int64)
         words = np.empty(n, np.int64)
         distances = np.empty(n, np.float64)
+        decided_by = np.empty(n, np.int8)
         created: list[int] = []
         for k in order.tolist():
             if new_d1[k] < nd0[k]:
                 nd, nearest_word, nnd = new_d1[k], int(new_w1[k]), min(nd0[k], new_d2[k])
             else:
                 nd, nearest_word, nnd = nd0[k], int(word0[k]), min(nnd0[k], new_d1[k])
-            if becomes_word(rule, float(nd), float(nnd), thresholds):
+            new, decided_by[k] = decide(rule, float(nd), float(nnd), thresholds)
+            if new:
                 word = self._add(descriptors[k])
                 created.append(word)
                 words[k], distances[k] = word, 0.0
@@ -205,7 +234,7 @@ class OnlineVocabulary:
                 new_d1 = np.where(closer, column, new_d1)
             else:
                 words[k], distances[k] = nearest_word, nd
-        return Quantisation(words, distances, np.asarray(created, np.int64), order.astype(np.int64))
+        return Quantisation(words, distances, np.asarray(created, np.int64), order.astype(np.int64), decided_by)
 
     # --- life cycle of words ------------------------------------------------------
 

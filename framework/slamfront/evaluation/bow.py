@@ -19,7 +19,8 @@ from slamfront.report import plots
 _FIELDS = (
     "frame", "n_features", "vocabulary_size", "active_words", "quantisation_error", "other_vocabulary_size",
     "other_quantisation_error", "merged", "wm_size", "stm_size", "ltm_size", "transferred", "retrieved",
-    "no_loop_posterior", "max_loop_posterior", "processing_seconds",
+    "no_loop_posterior", "max_loop_posterior", "processing_seconds", "modelled_seconds",
+    "by_ratio_test", "by_nd_high",
 )
 
 
@@ -46,12 +47,18 @@ class BowEvaluation(Evaluation):
         tracked_other = bool(last.other_rule)
         milliseconds = col["processing_seconds"] * 1000.0
         budget = last.time_budget_seconds
+        modelled = bool(np.isfinite(col["modelled_seconds"]).any())
+        # what the budget was compared with: the time model's seconds when there is one
+        compared = col["modelled_seconds"] if modelled else col["processing_seconds"]
         metrics: dict[str, Any] = {
             "bow_update_rule": last.update_rule,
             "bow_vocabulary_size": int(last.vocabulary_size),
             "bow_active_words": int(last.active_words),
             "bow_mean_quantisation_error": _nanmean(col["quantisation_error"]),
             "bow_merged_frames": int(col["merged"].sum()),
+            # which test decided the features: the greedy rule's band should leave most to the ratio test
+            "bow_share_ratio_test": feature_share(col["by_ratio_test"], col["n_features"]),
+            "bow_share_nd_high": feature_share(col["by_nd_high"], col["n_features"]),
             "bow_wm_size_max": int(col["wm_size"].max()),
             "bow_wm_size_final": int(last.wm_size),
             "bow_ltm_size_final": int(last.ltm_size),
@@ -60,8 +67,13 @@ class BowEvaluation(Evaluation):
             "bow_processing_ms_median": float(np.median(milliseconds)),
             "bow_processing_ms_p99": float(np.percentile(milliseconds, 99)),
             "bow_time_budget_ms": budget * 1000.0,
-            "bow_frames_over_budget": int(np.sum(col["processing_seconds"] > budget)) if budget > 0 else 0,
+            "bow_time_model": "linear" if modelled else "wall",
+            "bow_frames_over_budget": int(np.sum(compared > budget)) if budget > 0 else 0,
+            "bow_frames_transferring": int(np.sum(col["transferred"] > 0)),
         }
+        if modelled:
+            metrics["bow_modelled_ms_median"] = float(np.nanmedian(col["modelled_seconds"]) * 1000.0)
+            metrics["bow_modelled_ms_p99"] = float(np.nanpercentile(col["modelled_seconds"], 99) * 1000.0)
         if tracked_other:
             metrics["bow_other_rule"] = last.other_rule
             metrics["bow_other_vocabulary_size"] = int(last.other_vocabulary_size)
@@ -101,7 +113,9 @@ class BowEvaluation(Evaluation):
                     ("places", {"WM (searched)": (x, col["wm_size"]), "LTM": (x, col["ltm_size"])}, {}),
                     (
                         "ms per image",
-                        {"detector time": (x, col["processing_seconds"] * 1000.0)},
+                        {"detector time": (x, col["processing_seconds"] * 1000.0)}
+                        | ({"modelled time": (x, col["modelled_seconds"] * 1000.0)}
+                           if np.isfinite(col["modelled_seconds"]).any() else {}),
                         {"time budget": last.time_budget_seconds * 1000.0} if last.time_budget_seconds > 0 else {},
                     ),
                 ],
@@ -109,6 +123,12 @@ class BowEvaluation(Evaluation):
             ),
         ]
         return [p.name for p in paths]
+
+
+def feature_share(counts: np.ndarray, features: np.ndarray) -> float | None:
+    """Share of the quantised features (frames with a count) that ``counts`` covers."""
+    known = counts >= 0
+    return float(counts[known].sum() / features[known].sum()) if features[known].sum() > 0 else None
 
 
 def _nanmean(values: np.ndarray) -> float | None:

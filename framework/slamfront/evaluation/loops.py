@@ -2,6 +2,12 @@
 the search-space table, and the match plot (chosen reference vs query over the
 ground-truth band).
 
+Two scoring options (``eval.loop_scoring``, ``eval.unsearched_frames``), whose defaults
+score every frame's match frame: ``place`` counts a match correct when any frame of the
+matched place is (detectors that merge frames into places list them in
+``LoopResult.match_frames``); ``exclude`` leaves out the frames a detector answered
+without searching. The report and ``metrics.json`` say which rule scored the run.
+
 Scores are computed at the source's own tolerance and, for sources that can change it
 (``Source.loop_ground_truth_at``), at every extra tolerance in ``eval.tolerances``
 (metrics suffixed ``_zeta<t>``), so one run gives, say, zeta = 3 and zeta = 1.
@@ -9,6 +15,7 @@ Scores are computed at the source's own tolerance and, for sources that can chan
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +25,7 @@ import numpy as np
 from slamfront.core.loops import LoopGroundTruth, PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopConstraint, LoopResult, Message
+from slamfront.recipe import EvalOptions
 from slamfront.report import plots
 
 PR_CURVE_FILE = "pr_curve.csv"
@@ -41,7 +49,7 @@ def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 _PER_TOLERANCE = ("recall_at_100p", "auc_pr", "n_queries_with_true_match", "threshold_at_100p",
-                  "precision_at_operating_point", "recall_at_operating_point")
+                  "precision_at_operating_point", "recall_at_operating_point", "correct_answer_ceiling")
 
 
 @dataclass
@@ -49,6 +57,62 @@ class _Scores:
     metrics: dict[str, Any]
     curve: PrecisionRecall
     correct: np.ndarray
+    truth: LoopGroundTruth
+    """The ground truth of the queries scored (unsearched ones left out under ``exclude``)."""
+
+
+def score_loops(
+    reported: Mapping[int, LoopResult], truth: LoopGroundTruth, ks: list[int], options: EvalOptions
+) -> _Scores:
+    """Score a detector's answers (by query frame) against the ground truth, by the options' rule.
+
+    The metrics are those of ``metrics.json`` (recall at 100 % precision, AUC-PR, recall@K,
+    the operating point) plus the rule used (``loop_scoring``, ``unsearched_frames``) and
+    how many queries it left out.
+    """
+    missing = LoopResult(frame=-1, match=-1, confidence=float("nan"), accepted=False, reason="not reported")
+    excluded = 0
+    if options.unsearched_frames == "exclude":
+        kept = np.array([reported.get(int(f), missing).searched for f in truth.queries], dtype=bool)
+        excluded = int((~kept).sum())
+        truth = truth.subset(kept)
+    frames = truth.queries
+    results = [reported.get(int(f), missing) for f in frames]
+    match = np.array([r.match for r in results], dtype=np.int64)
+    confidence = np.array([r.confidence for r in results], dtype=np.float64)
+    accepted = np.array([r.accepted for r in results], dtype=bool)
+    answered = match >= 0
+    if options.loop_scoring == "place":
+        correct = truth.is_correct_place(frames, match, [r.match_frames for r in results])
+    else:
+        correct = truth.is_correct(frames, match)
+    positives = truth.has_true_match()
+    curve = precision_recall(confidence, answered, correct, int(positives.sum()))
+    op_accepted = accepted & answered
+    op_tp = int(np.sum(op_accepted & correct))
+    metrics: dict[str, Any] = {
+        "recall_at_100p": curve.recall_at_100p,
+        "auc_pr": curve.auc,
+        "n_queries": int(len(frames)),
+        "n_queries_with_true_match": int(positives.sum()),
+        "n_answered": int(answered.sum()),
+        "n_not_reported": int(sum(1 for f in frames if int(f) not in reported)),
+        "loop_scoring": options.loop_scoring,
+        "unsearched_frames": options.unsearched_frames,
+        "n_queries_excluded": excluded,
+        "threshold_at_100p": curve.threshold_at_100p(),
+        # what any confidence could reach: recall@100%P <= this, equal when every
+        # correct answer is more confident than every wrong one
+        "correct_answer_ceiling": int(np.sum(answered & correct)) / max(int(positives.sum()), 1),
+        "answered_of_answerable": int(np.sum(answered & positives)) / max(int(positives.sum()), 1),
+        "precision_at_operating_point": op_tp / max(int(op_accepted.sum()), 1),
+        "recall_at_operating_point": op_tp / max(int(positives.sum()), 1),
+    }
+    candidates = [r.candidates for r in results]
+    if any(c is not None for c in candidates):
+        for k, value in recall_at_k(frames, candidates, truth, ks).items():
+            metrics[f"recall_at_{k}"] = value
+    return _Scores(metrics, curve, correct, truth)
 
 
 class LoopClosureEvaluation(Evaluation):
@@ -88,35 +152,8 @@ class LoopClosureEvaluation(Evaluation):
             "recall_verified": tp / max(positives, 1),
         }
 
-    def _score(self, truth: LoopGroundTruth, ks: list[int]) -> _Scores:
-        frames = truth.queries
-        missing = LoopResult(frame=-1, match=-1, confidence=float("nan"), accepted=False, reason="not reported")
-        results = [self._results.get(int(f), missing) for f in frames]
-        match = np.array([r.match for r in results], dtype=np.int64)
-        confidence = np.array([r.confidence for r in results], dtype=np.float64)
-        accepted = np.array([r.accepted for r in results], dtype=bool)
-        answered = match >= 0
-        correct = truth.is_correct(frames, match)
-        positives = truth.has_true_match()
-        curve = precision_recall(confidence, answered, correct, int(positives.sum()))
-        op_accepted = accepted & answered
-        op_tp = int(np.sum(op_accepted & correct))
-        metrics: dict[str, Any] = {
-            "recall_at_100p": curve.recall_at_100p,
-            "auc_pr": curve.auc,
-            "n_queries": int(len(frames)),
-            "n_queries_with_true_match": int(positives.sum()),
-            "n_answered": int(answered.sum()),
-            "n_not_reported": int(sum(1 for f in frames if int(f) not in self._results)),
-            "threshold_at_100p": curve.threshold_at_100p(),
-            "precision_at_operating_point": op_tp / max(int(op_accepted.sum()), 1),
-            "recall_at_operating_point": op_tp / max(int(positives.sum()), 1),
-        }
-        candidates = [r.candidates for r in results]
-        if any(c is not None for c in candidates):
-            for k, value in recall_at_k(frames, candidates, truth, ks).items():
-                metrics[f"recall_at_{k}"] = value
-        return _Scores(metrics, curve, correct)
+    def _score(self, truth: LoopGroundTruth, ks: list[int], options: EvalOptions) -> _Scores:
+        return score_loops(self._results, truth, ks, options)
 
     def finish(self, context: EvaluationContext) -> EvaluationReport | None:
         truth = context.source.loop_ground_truth()
@@ -125,7 +162,7 @@ class LoopClosureEvaluation(Evaluation):
         zeta = getattr(context.source.config, "tolerance", None)
         if zeta is not None and context.source.loop_ground_truth_at(zeta) is None:
             zeta = None  # the source's truth is not a band of frames (a stream's revisit radius)
-        main = self._score(truth, context.options.recall_at_k)
+        main = self._score(truth, context.options.recall_at_k, context.options)
         write_pr_curve(main.curve, context.out_dir / PR_CURVE_FILE)
         metrics = dict(main.metrics)
         label = context.plugin_names.get("loop_detector", "detector")
@@ -136,7 +173,7 @@ class LoopClosureEvaluation(Evaluation):
             if other_truth is None:
                 notes.append(f"The source cannot be scored at tolerance {tolerance} (no tolerance to change).")
                 continue
-            other = self._score(other_truth, context.options.recall_at_k)
+            other = self._score(other_truth, context.options.recall_at_k, context.options)
             for key, value in other.metrics.items():
                 if key in _PER_TOLERANCE or (key.startswith("recall_at_") and key[len("recall_at_"):].isdigit()):
                     metrics[f"{key}_zeta{tolerance}"] = value
@@ -148,13 +185,13 @@ class LoopClosureEvaluation(Evaluation):
 
         figures = []
         if context.options.plots:
-            figures = self._plots(context, curves, main, truth, metrics)
+            figures = self._plots(context, curves, main, main.truth, metrics)
         table = "\n".join(
             ["| metric | value |", "| --- | --- |", *(f"| {key} | {_fmt(value)} |" for key, value in metrics.items())]
         )
         search = self._search_space_table({**space, **{k: context.statistics[k] for k in space if k in context.statistics}})
         markdown = (
-            f"{table}\n\n" + "".join(f"{note}\n\n" for note in notes) + search + "\n\n"
+            f"{table}\n\n{_scoring_note(context.options, metrics)}\n\n" + "".join(f"{note}\n\n" for note in notes) + search + "\n\n"
             + "".join(f"![{name}]({name})\n\n" for name in figures)
         )
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
@@ -226,6 +263,21 @@ class LoopClosureEvaluation(Evaluation):
             accepted=accepted,
         )
         return [pr_path.name, match_path.name]
+
+
+def _scoring_note(options: EvalOptions, metrics: dict[str, Any]) -> str:
+    """One sentence naming the scoring rule, for the report."""
+    rule = (
+        "a match is correct when any frame of the matched place is a true match (place scoring)"
+        if options.loop_scoring == "place"
+        else "a match is correct when its match frame is a true match (frame scoring)"
+    )
+    unsearched = (
+        f"frames answered without a search are left out ({metrics['n_queries_excluded']} frames)"
+        if options.unsearched_frames == "exclude"
+        else "every frame is scored, searched or not"
+    )
+    return f"Scoring: {rule}; {unsearched}."
 
 
 def _fmt(value: object) -> str:

@@ -15,8 +15,15 @@ from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInpu
 from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
-from slamfront.core.memory import MemoryManager, MemoryParameters
-from slamfront.core.vocabulary import OnlineVocabulary, Quantisation, UpdateRule, VocabularyThresholds
+from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
+from slamfront.core.vocabulary import (
+    BY_ND_HIGH,
+    BY_RATIO,
+    OnlineVocabulary,
+    Quantisation,
+    UpdateRule,
+    VocabularyThresholds,
+)
 from slamfront.local_features import DESCRIPTORS, DescriptorName
 from slamfront.messages import BowStatistics, Features, LoopResult, Message
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
@@ -26,12 +33,11 @@ from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
 class _Place:
     """What the detector keeps of a place: the frames it covers and its words."""
 
-    first_frame: int
+    frames: list[int]
+    """The frame that made it, then the frames merged into it (T_sim)."""
     bag: Counter[int]
     words: np.ndarray
     other_words: np.ndarray | None
-    last_frame: int = -1
-    """The last frame merged into it (T_sim); -1: none."""
 
     @property
     def frame(self) -> int:
@@ -39,9 +45,23 @@ class _Place:
 
         Wang et al. 2017 keeps the first image of a run of similar ones and drops the rest, so a
         place stands for all of them; the middle one is never more than half the run
-        away from the frame the robot actually revisits.
+        away from the frame the robot actually revisits. The answer also lists every
+        frame of the place (``LoopResult.match_frames``) for place scoring.
         """
-        return self.first_frame if self.last_frame < 0 else (self.first_frame + self.last_frame) // 2
+        return (self.frames[0] + self.frames[-1]) // 2
+
+
+@dataclass(frozen=True)
+class _Cost:
+    """A frame's time so far: when it started, the comparison vocabulary's share, and the modelled seconds."""
+
+    started: float
+    other_seconds: float
+    modelled: float
+    words: int = 0
+    """Words the nearest-word search scanned."""
+    places: int = 0
+    """Places in WM at the search."""
 
 
 @dataclass
@@ -57,14 +77,19 @@ class BowBayes(LoopDetector):
 
     Each frame's local features are quantised to an online vocabulary built by the
     greedy rule of Wang et al. 2017 (``vocabulary_update: greedy``: largest nearest-word distance
-    first, T_ND1 / T_ND2 / T_NNDR) or RTAB-Map's ratio rule (``nndr``). A frame more
-    similar than T_sim to the previous one is merged into its place (no search; it
-    repeats the previous answer). Otherwise the frame's similarity to every place in
-    working memory feeds the Bayes filter; the answer is the most probable place with
-    confidence ``1 - p(no loop)``, accepted when ``p(no loop) < T_loop``. Memory
-    management (STM / WM / LTM, RTAB-Map style) keeps the newest places out of the
-    search and moves the lowest-weighted, oldest places out of it when a frame takes
-    longer than the time budget; neighbours of the best hypothesis come back from LTM.
+    first, T_ND1 / T_ND2 / T_NNDR) or RTAB-Map's ratio rule (``nndr``); distances are
+    squared L2 (float descriptors) or bits. A frame more similar than T_sim to the
+    previous one is merged into its place (it adds no place and keeps no word) and, by
+    default, still searched, as RTAB-Map runs its Bayes filter on every image
+    (``merged_frames: repeat`` repeats the previous answer instead). The frame's
+    similarity to every place in working memory feeds the Bayes filter; the answer is
+    the most probable place with confidence ``1 - p(no loop)``, accepted when
+    ``p(no loop) < T_loop``. Memory management (STM / WM / LTM, RTAB-Map's) keeps the
+    newest places out of the search, moves the lowest-weighted, oldest places out of it
+    when a frame takes longer than the time budget (measured, or modelled for
+    reproducible runs) until as many words left the search as arrived, hands a place's
+    weight to the newer place of an accepted loop, and brings the neighbours of the
+    best hypothesis back from LTM.
 
     Streams (one traversal revisiting places) and paired traversals (reference places,
     then queries searched against them) both work. Frames with fewer than
@@ -84,15 +109,23 @@ class BowBayes(LoopDetector):
         descriptor_type: DescriptorName | None = Field(
             None, description="descriptor the vocabulary is built for (default: the local_features stage's)"
         )
-        nndr_ratio: float = Field(0.8, gt=0, le=1, description="T_NNDR: new word when ND/NND is above this")
+        nndr_ratio: float = Field(
+            0.8, gt=0, le=1, description="T_NNDR: new word when ND/NND (squared distances, or bits) is above this"
+        )
         nd_low: float | None = Field(
-            None, ge=0, description="T_ND1 (greedy): below it the nearest word is used; default per descriptor type"
+            None, ge=0, description="T_ND1 (greedy): below it the nearest word is used; squared L2 (float descriptors) "
+            "or bits; default per descriptor type"
         )
         nd_high: float | None = Field(
-            None, ge=0, description="T_ND2 (greedy): above it the feature is a new word; default per descriptor type"
+            None, ge=0, description="T_ND2 (greedy): above it the feature is a new word; squared L2 or bits; "
+            "default per descriptor type"
         )
         similarity_threshold: float = Field(
             0.2, ge=0, le=1, description="T_sim: a frame more similar than this to the previous one is merged"
+        )
+        merged_frames: Literal["search", "repeat"] = Field(
+            "search", description="search: a frame merged by T_sim still runs the Bayes filter (RTAB-Map); repeat: "
+            "it repeats the previous answer unsearched (eval.unsearched_frames can leave it out of the scores)"
         )
         loop_threshold: float = Field(0.11, gt=0, le=1, description="T_loop: accept a loop when p(no loop) is below")
         transition_sigma: float = Field(1.6, gt=0, description="Gaussian of the loop-to-loop transition, in places")
@@ -102,9 +135,27 @@ class BowBayes(LoopDetector):
         min_features: int = Field(5, ge=1, description="frames with fewer features get 'no answer'")
         stm_size: int = Field(10, ge=0, description="newest places kept out of the search (STM)")
         time_budget_s: float = Field(
-            0.7, ge=0, description="T_time: over it, places move from WM to LTM (seed: 0.7 s at 1 Hz; 0 = none)"
+            0.7, ge=0, description="T_time: over it, places move from WM to LTM (Wang et al. 2017: 0.7 s at 1 Hz; "
+            "0 = none)"
         )
+        time_model: Literal["wall", "linear"] = Field(
+            "wall", description="what the budget is compared with: the detector's measured time per frame, or the "
+            "deterministic model base + comparison * features * searched words + place * WM places"
+        )
+        model_base_s: float = Field(0.0011, ge=0, description="linear time model: fixed seconds per frame")
+        model_comparison_s: float = Field(
+            2.4e-9, ge=0, description="linear time model: seconds per feature-word comparison"
+        )
+        model_place_s: float = Field(4.0e-6, ge=0, description="linear time model: seconds per WM place")
         max_working_memory: int = Field(0, ge=0, description="also cap WM at this many places (0 = no cap)")
+        forget_places: bool = Field(
+            False, description="over budget, also transfer one place more than entered WM (RTAB-Map without an "
+            "incremental vocabulary): the time settles under the budget instead of at it"
+        )
+        recent_ratio: float = Field(
+            0.2, ge=0, le=1, description="places made since the last accepted loop stay in WM while fewer than this "
+            "share of it (RTAB-Map's Mem/RecentWmRatio)"
+        )
         max_retrieved: int = Field(2, ge=0, description="places brought back from LTM per frame")
         retrieval_radius: int = Field(3, ge=0, description="neighbours of the best hypothesis retrieved / kept")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
@@ -120,8 +171,10 @@ class BowBayes(LoopDetector):
         c = self.config
         self._descriptor_type: str | None = c.descriptor_type
         self._memory = MemoryManager(
-            MemoryParameters(c.stm_size, c.time_budget_s, c.max_working_memory, c.max_retrieved, c.retrieval_radius)
+            MemoryParameters(c.stm_size, c.time_budget_s, c.max_working_memory, c.max_retrieved, c.retrieval_radius,
+                             c.recent_ratio, c.forget_places)
         )
+        self._time_model = LinearTimeModel(c.model_base_s, c.model_comparison_s, c.model_place_s)
         self._filter = BayesFilter(
             BayesParameters(sigma=c.transition_sigma, loop_threshold=c.loop_threshold,
                             ignore_zero_similarities=c.ignore_zero_similarities)
@@ -134,6 +187,7 @@ class BowBayes(LoopDetector):
         self._last_answer: dict[str, LoopResult] = {}
         self._queries_started = False
         self._counts = Counter[str]()
+        self._entered = 0  # places that entered WM during the current frame
         self.clock: Callable[[], float] = time.perf_counter
         """Seconds, for the time budget; tests swap in a modelled clock to be deterministic."""
 
@@ -211,11 +265,12 @@ class BowBayes(LoopDetector):
         if features.descriptors is None:
             raise PluginError(f"frame {frame.index}: the descriptor stage gave no local features")
         started = self.clock()
-        entered: list[int] = []
+        self._entered = 0
+        active_at_start = 0 if self._vocabularies is None else self._vocabularies.main.n_active
         if frame.traversal == "query" and not self._queries_started:
             # the reference traversal is over: every reference place becomes searchable
             self._queries_started = True
-            entered += self._into_working(self._memory.flush())
+            self._into_working(self._memory.flush())
         descriptors = features.descriptors
         n = len(descriptors)
         if n < self.config.min_features:
@@ -223,10 +278,9 @@ class BowBayes(LoopDetector):
             reason = "no features" if n == 0 else f"only {n} features (min_features = {self.config.min_features})"
             result = LoopResult(frame=frame.index, match=-1, confidence=0.0, accepted=False, reason=reason)
             outputs: list[Message] = [] if frame.traversal == "reference" else [result]
-            transferred = self._transfer(self.clock() - started, len(entered), set())
-            stats = self._statistics(frame.index, n, None, None, -1, False, transferred, 0, None,
-                                     self.clock() - started)
-            return [*outputs, stats]
+            cost = _Cost(started, 0.0, self._time_model.seconds(0, 0, self._memory.n_wm))
+            transferred = self._transfer(cost, active_at_start, set())
+            return [*outputs, self._statistics(frame.index, n, None, None, -1, False, transferred, 0, None, cost)]
 
         vocabularies = self._vocabulary_for(features)
         rule = self.config.vocabulary_update
@@ -241,6 +295,7 @@ class BowBayes(LoopDetector):
             other = vocabularies.other.update(descriptors, self.other_rule, thresholds)
             other_seconds = self.clock() - tick
         n_before = len(vocabularies.main)
+        searched_words = vocabularies.main.n_active
         quantised = vocabularies.main.update(descriptors, rule, thresholds)
         bag = bag_of(quantised.words)
 
@@ -251,11 +306,11 @@ class BowBayes(LoopDetector):
         place = -1
         if keep:
             place = len(self._places)
-            self._places[place] = _Place(frame.index, bag, quantised.words, None if other is None else other.words)
+            self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words)
             vocabularies.main.retain(quantised.words)
             if vocabularies.other is not None and other is not None:
                 vocabularies.other.retain(other.words)
-            entered += self._into_working(self._memory.add(place))
+            self._into_working(self._memory.add(place))
             self._last_place = place
         else:
             vocabularies.main.truncate(n_before)
@@ -265,7 +320,7 @@ class BowBayes(LoopDetector):
             if merged:
                 place = int(self._last_place)  # type: ignore[arg-type]
                 self._memory.merge(place)
-                self._places[place].last_frame = frame.index
+                self._places[place].frames.append(frame.index)
                 self._counts["merged"] += 1
         if not similar:
             self._previous_bag[frame.traversal] = bag
@@ -274,24 +329,26 @@ class BowBayes(LoopDetector):
         step: BayesStep | None = None
         retrieved: list[int] = []
         immune: set[int] = set()
+        n_searched_places = self._memory.n_wm
         if frame.traversal in ("stream", "query"):
-            if similar:
+            if similar and self.config.merged_frames == "repeat":
                 result = self._repeat_answer(frame.index, frame.traversal, place)
             else:
                 step = self._search(bag)
                 result = self._answer(frame.index, step)
                 if step.best >= 0:
+                    if result.accepted and frame.traversal == "stream" and place >= 0:
+                        self._memory.close_loop(place, step.best)
                     retrieved = self._into_working(self._memory.retrieve(step.best), retrieved=True)
                     immune = self._memory.immune_around(step.best) | set(retrieved)
                 self._last_answer[frame.traversal] = result
             outputs.append(result)
             self._counts["queries"] += 1
             self._counts["accepted"] += int(result.accepted and result.match >= 0)
-        elapsed = self.clock() - started - other_seconds
-        transferred = self._transfer(elapsed, len(entered) + len(retrieved), immune)
-        stats = self._statistics(
-            frame.index, n, quantised, other, place, merged, transferred, len(retrieved), step, elapsed
-        )
+        modelled = self._time_model.seconds(n, searched_words, n_searched_places)
+        cost = _Cost(started, other_seconds, modelled, searched_words, n_searched_places)
+        transferred = self._transfer(cost, active_at_start, immune)
+        stats = self._statistics(frame.index, n, quantised, other, place, merged, transferred, len(retrieved), step, cost)
         return [*outputs, stats]
 
     # --- steps --------------------------------------------------------------------
@@ -314,6 +371,7 @@ class BowBayes(LoopDetector):
             confidence=float(np.clip(1.0 - step.no_loop, 0.0, 1.0)),
             accepted=step.accepted,
             candidates=frames,
+            match_frames=np.array(self._places[step.best].frames, dtype=np.int64),
         )
 
     def _repeat_answer(self, frame: int, traversal: str, place: int) -> LoopResult:
@@ -323,10 +381,11 @@ class BowBayes(LoopDetector):
         if place >= 0:
             note += f", merged into place {place}"
         if last is None:
-            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason=note)
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason=note, searched=False)
         return LoopResult(
             frame=frame, match=last.match, confidence=last.confidence, accepted=last.accepted,
             candidates=last.candidates, reason=f"{note}: repeats frame {last.frame}'s answer",
+            match_frames=last.match_frames, searched=False,
         )
 
     def _unkept_words_private(self, bag: Counter[int], n_kept: int) -> Counter[int]:
@@ -348,19 +407,29 @@ class BowBayes(LoopDetector):
             if retrieved:
                 self._retain(record)
         self._counts["retrieved"] += len(places) if retrieved else 0
+        self._entered += len(places)
         return places
 
-    def _transfer(self, elapsed: float, entered: int, immune: set[int]) -> list[int]:
-        transferred = self._memory.transfer(elapsed, entered, immune)
-        for place in transferred:
-            self._index.remove(place)
-            record = self._places[place]
-            assert self._vocabularies is not None
-            self._vocabularies.main.release(record.words)
-            if self._vocabularies.other is not None and record.other_words is not None:
-                self._vocabularies.other.release(record.other_words)
+    def _transfer(self, cost: _Cost, active_at_start: int, immune: set[int]) -> list[int]:
+        """RTAB-Map's transfer after the frame, with the time it took so far (or the model's)."""
+        elapsed = self.clock() - cost.started - cost.other_seconds
+        compared = cost.modelled if self.config.time_model == "linear" else elapsed
+        vocabularies = self._vocabularies
+        arrived = 0 if vocabularies is None else max(0, vocabularies.main.n_active - active_at_start)
+        transferred = self._memory.transfer(compared, arrived, immune, self._to_long_term, self._entered)
         self._counts["transferred"] += len(transferred)
         return transferred
+
+    def _to_long_term(self, place: int) -> int:
+        """Take a transferred place out of the search; returns the words that left the search with it."""
+        self._index.remove(place)
+        record = self._places[place]
+        assert self._vocabularies is not None
+        before = self._vocabularies.main.n_active
+        self._vocabularies.main.release(record.words)
+        if self._vocabularies.other is not None and record.other_words is not None:
+            self._vocabularies.other.release(record.other_words)
+        return before - self._vocabularies.main.n_active
 
     def _retain(self, record: _Place) -> None:
         assert self._vocabularies is not None
@@ -370,7 +439,7 @@ class BowBayes(LoopDetector):
 
     def _statistics(
         self, frame: int, n_features: int, quantised: Quantisation | None, other: Quantisation | None,
-        place: int, merged: bool, transferred: list[int], retrieved: int, step: BayesStep | None, seconds: float,
+        place: int, merged: bool, transferred: list[int], retrieved: int, step: BayesStep | None, cost: _Cost,
     ) -> BowStatistics:
         vocabularies = self._vocabularies
         return BowStatistics(
@@ -380,6 +449,8 @@ class BowBayes(LoopDetector):
             vocabulary_size=0 if vocabularies is None else len(vocabularies.main),
             active_words=0 if vocabularies is None else vocabularies.main.n_active,
             quantisation_error=float("nan") if quantised is None else quantised.mean_error,
+            by_ratio_test=-1 if quantised is None else int(np.sum(quantised.decided_by == BY_RATIO)),
+            by_nd_high=-1 if quantised is None else int(np.sum(quantised.decided_by == BY_ND_HIGH)),
             update_rule=self.config.vocabulary_update,
             other_rule=self.other_rule if self.config.compare_rules else "",
             other_vocabulary_size=-1 if vocabularies is None or vocabularies.other is None else len(vocabularies.other),
@@ -394,7 +465,10 @@ class BowBayes(LoopDetector):
             no_loop_posterior=float("nan") if step is None else step.no_loop,
             max_loop_posterior=float("nan") if step is None else step.best_probability,
             loop_threshold=self.config.loop_threshold,
-            processing_seconds=seconds,
+            processing_seconds=self.clock() - cost.started - cost.other_seconds,
+            searched_words=cost.words,
+            searched_places=cost.places,
+            modelled_seconds=cost.modelled if self.config.time_model == "linear" else float("nan"),
             time_budget_seconds=self.config.time_budget_s,
         )
 

@@ -21,7 +21,7 @@ from typing import Literal
 
 import numpy as np
 
-from slamfront.core.distances import pairwise
+from slamfront.core.distances import pairwise, rowwise
 from slamfront.core.sequences import alignment_costs
 
 Sequence2 = tuple[int, int]
@@ -46,12 +46,12 @@ def sequence_costs(query_representatives: np.ndarray, candidate_representatives:
 
     :param query_representatives: (rho, D).
     :param candidate_representatives: (K, rho, D), the candidates' place representatives in order.
-    :returns: (K,) float64.
+    :returns: (K,) float64; K x rho distances are computed.
     """
     k, rho, dim = candidate_representatives.shape
-    flat = pairwise(query_representatives, candidate_representatives.reshape(k * rho, dim), metric)  # type: ignore[arg-type]
-    per_place = flat.reshape(rho, k, rho)[np.arange(rho), :, np.arange(rho)]  # (rho, K): q_j vs f_j^k
-    return per_place.astype(np.float64).sum(axis=0)
+    query = np.broadcast_to(query_representatives, (k, rho, dim)).reshape(k * rho, dim)
+    per_place = rowwise(query, candidate_representatives.reshape(k * rho, dim), metric).reshape(k, rho)  # type: ignore[arg-type]
+    return per_place.astype(np.float64).sum(axis=1)
 
 
 def consistent(previous: Sequence2, current: Sequence2, alpha: int) -> bool:
@@ -140,7 +140,8 @@ class FrameMatch:
 
     ``aligned[k]`` is the map-frame position matched to query frame k (all -1 when
     there is no answer, with ``reason``). ``cost`` is the summed distance of the chosen
-    alignment; ``mean_distance`` is v of eq. 3.14 over the informative query frames.
+    alignment; ``mean_distance`` is v of eq. 3.14 over the informative query frames;
+    ``n_distances`` counts the descriptor distances computed.
     """
 
     aligned: np.ndarray
@@ -152,6 +153,7 @@ class FrameMatch:
     used_synthetic: bool
     padded_places: int
     reason: str = ""
+    n_distances: int = 0
 
 
 def expand_with_padding(
@@ -215,13 +217,14 @@ def match_frames(
     per_frame = distances[np.arange(n), offset + np.arange(n)].astype(np.float64)
     synthetic_cost = np.nan
     used = False
+    computed = distances.size
     if synthetic and previous_last is not None and previous_last + 1 + n <= n_map_frames:
         continuation = previous_last + 1 + np.arange(n, dtype=np.int64)
-        pairs = pairwise(query, map_vectors(previous_last + 1, previous_last + 1 + n), metric)  # type: ignore[arg-type]
-        synthetic_per_frame = pairs[np.arange(n), np.arange(n)].astype(np.float64)
+        synthetic_per_frame = rowwise(query, map_vectors(previous_last + 1, previous_last + 1 + n), metric).astype(np.float64)  # type: ignore[arg-type]
+        computed += n
         synthetic_cost = float(synthetic_per_frame.sum())
         if synthetic_cost <= template_cost:  # eq. 3.13
             aligned, per_frame, used = continuation, synthetic_per_frame, True
     cost = float(per_frame.sum())
     mean = float(per_frame[informative].mean()) if informative.any() else np.nan
-    return FrameMatch(aligned, cost, mean, offset, template_cost, synthetic_cost, used, padded)
+    return FrameMatch(aligned, cost, mean, offset, template_cost, synthetic_cost, used, padded, n_distances=computed)

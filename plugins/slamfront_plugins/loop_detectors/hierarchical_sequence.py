@@ -3,11 +3,12 @@
 Online, as in Alg. 1: query frames arrive one at a time and the ``hierarchical`` place
 map groups them into places. When the rho-th place since the last query sequence is
 complete (the first frame of the next place arrived), the last rho places form the
-query sequence Q and one iteration runs:
+query sequence Q and one iteration runs. Level 1 is the same in both modes: the psi map
+places nearest to ``R(q_rho)`` (exact search) give the candidates. Two modes differ after it:
 
-1. level 1: the psi map places nearest to ``R(q_rho)`` (exact VP-tree search) give the
-   candidate sequences;
-2. level 2: the candidate nearest to Q place by place, checked for temporal
+``mode: faithful`` (Rodrigues 2019 to the letter, :mod:`.hierarchical_levels`):
+
+2. level 2: the candidate nearest to Q place by place (eq. 3.5), checked for temporal
    consistency with the previous iteration; an inconsistent one waits for the next
    iteration, and one inconsistent with both is rebuilt from the previous processed
    sequence plus the rho places after it;
@@ -17,13 +18,31 @@ query sequence Q and one iteration runs:
    query frame gets its aligned reference frame with confidence ``1 - v / max_distance``,
    v being the mean distance of the aligned pairs (eq. 3.14).
 
-Answers therefore come out when Q completes, or one iteration later when its sequence
-had to wait. Every query frame ends with a ``LoopResult``: a match and a confidence, or
+``mode: frames`` (the default, :mod:`.hierarchical_frames`):
+
+2. level 2 compares every candidate frame by frame: straight trajectories through the
+   map frames at speeds ``vmin..vmax`` over the last ``sequence_frames`` query frames,
+   anchored where level 1 paired the query place with a map place. The last answer,
+   continued, is one more candidate (the *track*); it replaces the faithful mode's
+   rebuilt sequence and synthetic continuation, but is re-aligned to the descriptors
+   and must beat level 1's candidates at every iteration, so it cannot drift away
+   from the data. Temporal consistency (alpha, in frames) works as in Alg. 3: an answer
+   inconsistent with the previous one waits for the next iteration; validated by it,
+   it is answered, otherwise it is answered as *isolated* with confidence 0;
+3. level 3: each frame of Q is paired along the best trajectory. The confidence is the
+   best trajectory's uniqueness among the candidates, ``1 - cost / second`` (second:
+   the best candidate ending more than ``uniqueness_window`` frames away), as SeqSLAM's.
+
+Answers come out when Q completes, or one iteration later when its sequence had to
+wait. Every query frame ends with a ``LoopResult``: a match and a confidence, or
 ``match = -1`` with the reason (map too small, no candidate, nothing to rebuild from,
 featureless frame, traversal ended before its sequence was complete). Each level-3
-decision is also logged as a ``SequenceDecision``.
+decision is also logged as a ``SequenceDecision``. The descriptor distances the
+detector computes (level-1 search and sequence comparisons) are counted
+(``n_distances``).
 
-Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsistent:
+Deviations from the letter of Rodrigues 2019 in the faithful mode, where it is ambiguous
+or inconsistent:
 - the synthetic descriptor sequence (eq. 3.12) takes as many frames as Q-bar has, so
   eq. 3.13 compares sums of equal length; it is skipped when the map ends first;
 - a rebuilt sequence is the last rho places of the previous processed sequence plus
@@ -35,15 +54,24 @@ Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsist
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.core.distances import rowwise
 from slamfront.messages import LoopResult, Message, PlaceAssignment
+from slamfront_plugins.loop_detectors.hierarchical_frames import (
+    PairDistances,
+    Trajectory,
+    best_trajectory,
+    speeds,
+    uniqueness,
+)
 from slamfront_plugins.loop_detectors.hierarchical_levels import (
     Dispatch,
     FrameMatch,
@@ -66,25 +94,40 @@ class SequenceDecision(Message):
     query_frames: np.ndarray
     """(n,) int64 frame indices of Q-bar."""
     candidates: np.ndarray
-    """(K, 2) int64 level-1 candidate sequences (first, last map position), by level-2 cost."""
+    """(K, 2) int64, by level-2 cost. Faithful: level-1 candidate sequences (first, last map
+    position). Frames: (map position of the level-1 place, -1 for the track; map-frame
+    position its best trajectory pairs with Q's last frame)."""
     candidate_costs: np.ndarray
-    """(K,) float64 eq. 3.5 cost of each candidate."""
+    """(K,) float64 level-2 cost of each candidate (eq. 3.5; frames: mean trajectory distance)."""
     branch: str
-    """consistent, validated_by_next, rebuilt, unresolved, or a no-answer reason key."""
+    """consistent, validated_by_next, rebuilt, unresolved, isolated (frames), or a no-answer reason key."""
     first: int = -1
+    """Faithful: first map place of F*. Frames: map-frame position paired with Q's first frame."""
     last: int = -1
+    """Faithful: last map place of F*. Frames: map-frame position paired with Q's last frame."""
     template_offset: int = -1
     template_cost: float = float("nan")
     synthetic_cost: float = float("nan")
     used_synthetic: bool = False
+    """Faithful: the synthetic continuation won (eq. 3.13). Frames: the track won."""
     padded_places: int = 0
     confidence: float = float("nan")
     reason: str = ""
+    speed: float = float("nan")
+    """Frames: the speed of the chosen trajectory (map frames per query frame)."""
+
+
+DISTANCE_ACCEPT = 0.75
+"""Default operating point of eq. 3.14's confidence ``1 - v/2``."""
+UNIQUENESS_ACCEPT = 0.1
+"""Default operating point of the uniqueness confidence ``1 - best/second``: on the held-out
+data (Nordland frames 2900-3575, synthetic world seeds 100-102) every answer above 0.073 was
+correct; rounded up for a margin."""
 
 
 @dataclass
 class _Iteration:
-    """A query sequence between level 2 and level 3."""
+    """A query sequence between level 2 and level 3 (faithful mode)."""
 
     number: int
     places: list[int]
@@ -93,25 +136,60 @@ class _Iteration:
     costs: np.ndarray
 
 
+@dataclass
+class _FrameAnswer:
+    """A query sequence compared frame by frame, waiting to be answered (frames mode)."""
+
+    number: int
+    places: list[int]
+    frames: np.ndarray
+    positions: np.ndarray
+    """(n,) query positions of the frames."""
+    trajectories: list[tuple[Trajectory, int]]
+    """(trajectory, level-1 map place or -1 for the track), best first."""
+    confidence: float
+    """Its own: the uniqueness of the best trajectory (or 1 - v/2 with ``confidence: distance``)."""
+    evidence: float
+    """The confidence accumulated along the consistent run it ends."""
+    consistent: bool
+    """Consistent with the previous iteration's answer."""
+    n_map: int
+    """Map-frame positions 0..n_map-1 could be paired when it was compared."""
+    map_informative: np.ndarray
+    """(n_map,) bool, the map frames that were not featureless then."""
+
+
 class HierarchicalSequence(LoopDetector):
     """Three-level sequence-based loop closure detection over a hierarchical place map (Rodrigues 2019).
 
     Query sequences of ``rho`` places are searched in the map: level 1 finds ``psi``
-    candidate place sequences with the VP-tree, level 2 keeps the best one that is
-    temporally consistent (``alpha``), level 3 aligns the frames and gives each query
-    frame a match and a confidence, or an explicit no-answer. Needs the
-    ``hierarchical`` place map. Defaults: Rodrigues 2019 Table 4.1.
+    candidate places with the VP-tree, level 2 keeps the best temporally consistent
+    candidate (``alpha``), level 3 aligns the frames and gives each query frame a match
+    and a confidence, or an explicit no-answer. ``mode: frames`` (default) compares the
+    candidates frame by frame as trajectories and continues the last answer as a
+    candidate; ``mode: faithful`` is Rodrigues 2019 to the letter (place-by-place level 2,
+    rebuilt sequences, synthetic continuation). Needs the ``hierarchical`` place map.
+    Defaults of rho, psi, alpha: Rodrigues 2019 Table 4.1.
     """
 
     name = "hierarchical_sequence"
     requires = ("descriptor", "place_map")
 
     class Config(PluginConfig):
+        mode: Literal["frames", "faithful"] = Field(
+            "frames", description="frames: level 2 compares candidates frame by frame, the last answer is "
+            "continued as a candidate; faithful: Rodrigues 2019's place-by-place level 2, rebuild and synthetic "
+            "continuation"
+        )
         rho: int = Field(5, ge=1, description="places per query sequence |Q| = |F| (Table 4.1)")
         psi: int = Field(10, ge=1, description="nearest neighbours searched at level 1 (Table 4.1)")
-        alpha: int = Field(5, ge=1, description="temporal consistency: max |I(f_rho^{i-1}) - I(f_1^i)| (Table 4.1)")
-        accept_confidence: float = Field(
-            0.75, ge=0, le=1, description="operating point: matches at this confidence or more are accepted"
+        alpha: int = Field(
+            5, ge=1, description="temporal consistency: max |I(f_rho^{i-1}) - I(f_1^i)| in places (Table 4.1); "
+            "frames mode: max distance in map frames between an answer and the previous one continued"
+        )
+        accept_confidence: float | None = Field(
+            None, ge=0, le=1, description="operating point: matches at this confidence or more are accepted; "
+            "unset: 0.75 for eq. 3.14's distance confidence, 0.1 for uniqueness (chosen on held-out data)"
         )
         query_joins_map: bool = Field(
             False, description="query places join the map after their iteration (Rodrigues 2019 §4.4 keeps the map "
@@ -121,11 +199,53 @@ class HierarchicalSequence(LoopDetector):
             20, ge=0, description="stream traversals: the most recent map places are not loop candidates"
         )
         candidates: int = Field(10, ge=1, description="ranked candidate frames reported per query (recall@K)")
+        sequence_frames: int = Field(
+            40, ge=2, description="frames mode: query frames compared per candidate (at least Q's frames)"
+        )
+        vmin: float = Field(0.8, gt=0, description="frames mode: slowest trajectory, map frames per query frame")
+        vmax: float = Field(1.25, gt=0, description="frames mode: fastest trajectory")
+        anchor_slack: int = Field(
+            2, ge=0, description="frames mode: map frames either side of an anchor tried (a place spans frames)"
+        )
+        uniqueness_window: int = Field(
+            10, ge=0, description="frames mode: candidates ending within this many map frames of the best one do "
+            "not count as the second best"
+        )
+        refine: int = Field(
+            3, ge=0, description="frames mode: when > 0, only the best `refine` level-1 candidates at speed 1 "
+            "over the last screen_frames (and the track) get the full comparison; 0: all of them"
+        )
+        screen_frames: int = Field(6, ge=1, description="frames mode: query frames of the screening (refine > 0)")
+        track: bool = Field(True, description="frames mode: the last answer, continued, is a candidate too")
+        confidence: Literal["uniqueness", "distance"] = Field(
+            "uniqueness", description="frames mode: 1 - best / second best far candidate (as SeqSLAM), or "
+            "1 - v / max_distance of the chosen pairs (eq. 3.14, the faithful mode's)"
+        )
+        evidence_iterations: int = Field(
+            3, ge=1, description="frames mode: an answer's confidence is the mean over the last this many "
+            "iterations of the consistent run it continues (1: its own iteration only)"
+        )
+        realign: bool = Field(
+            True, description="frames mode, level 3: Q's own frames are slid along the chosen trajectory and at "
+            "speed 1 (eq. 3.10), -anchor_slack..anchor_slack map frames, and answered where they fit best"
+        )
+        isolate: bool = Field(
+            True, description="frames mode: an answer inconsistent with the previous one waits for the next; "
+            "consistent with neither, it keeps confidence 0 (False: every answer at once, with its confidence)"
+        )
+
+        @model_validator(mode="after")
+        def _speeds(self) -> HierarchicalSequence.Config:
+            if self.vmin > self.vmax:
+                raise ValueError("vmin must not exceed vmax")
+            return self
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
+        c = self.config
         self._map: HierarchicalPlaceMap | None = None
-        self._consistency = TemporalConsistency(self.config.rho, self.config.alpha)
+        self._consistency = TemporalConsistency(c.rho, c.alpha)
+        self._awaiting: deque[int] = deque()  # query frames whose place is not known yet
         self._pending: list[int] = []  # closed query places not yet in a Q
         self._open_place: int | None = None
         self._iterations: dict[int, _Iteration] = {}
@@ -134,6 +254,19 @@ class HierarchicalSequence(LoopDetector):
         self._counts: dict[str, int] = {}
         self._query_frames = 0
         self._query_places = 0
+        # frames mode
+        self._order: list[int] = []  # query frames by query position
+        self._position: dict[int, int] = {}
+        self._informative: list[bool] = []
+        self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
+        self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames)
+        self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
+        self._waiting: _FrameAnswer | None = None  # the last sequence, answered when the next one is compared
+        self._run: list[float] = []  # confidences of the current run of consistent sequences
+        self._sequence_distances = 0
+        uniqueness = c.mode == "frames" and c.confidence == "uniqueness"
+        self._accept = c.accept_confidence if c.accept_confidence is not None else (
+            UNIQUENESS_ACCEPT if uniqueness else DISTANCE_ACCEPT)
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         if not isinstance(stages.get("place_map"), HierarchicalPlaceMap):
@@ -144,31 +277,51 @@ class HierarchicalSequence(LoopDetector):
 
     def process(self, inputs: StageInputs) -> Sequence[Message]:
         self._map = inputs.stages["place_map"]  # type: ignore[assignment]
-        frame = inputs.frame
-        if frame.traversal == "reference":
-            return []
-        assignment: PlaceAssignment = inputs.one("place_map", PlaceAssignment)
-        self._query_frames += 1
+        if inputs.frame.traversal != "reference":
+            self._awaiting.append(inputs.frame.index)
         out: list[Message] = []
-        if assignment.new_place:
-            self._query_places += 1
-            if self._open_place is not None:
-                out += self._close(self._open_place, frame.traversal)
-            self._open_place = assignment.place
+        # the place map may place several frames at once (those it held while choosing nu)
+        for assignment in inputs.outputs.get("place_map", ()):
+            if isinstance(assignment, PlaceAssignment) and self._awaiting and assignment.frame == self._awaiting[0]:
+                self._awaiting.popleft()
+                out += self._placed(assignment.frame, assignment.place, assignment.new_place)
         return out
 
     def finish(self) -> Sequence[Message]:
         out: list[Message] = []
-        if self._map is None:
+        pm = self._map
+        if pm is None:
             return out
+        while self._awaiting:  # placed by the place map's own finish (a run shorter than its calibration)
+            frame = self._awaiting.popleft()
+            place = pm.place_of(frame)
+            out += self._placed(frame, place, pm.places[place].frames[0] == frame)
         if self._open_place is not None:
-            out += self._close(self._open_place, self._map.places[self._open_place].traversal)
+            out += self._close(self._open_place, pm.places[self._open_place].traversal)
             self._open_place = None
-        for dispatch in self._consistency.finish(self._map.n_map_places):
-            out += self._level3(dispatch)
+        if self.config.mode == "faithful":
+            for dispatch in self._consistency.finish(pm.n_map_places):
+                out += self._level3(dispatch)
+        else:
+            out += self._settle(None)
         for place in self._pending:
             out += self._no_answer(self._frames_of([place]), "traversal ended before its query sequence was complete")
         self._pending = []
+        return out
+
+    def _placed(self, frame: int, place: int, new_place: bool) -> list[Message]:
+        pm = self._map
+        assert pm is not None
+        self._query_frames += 1
+        self._position[frame] = len(self._order)
+        self._order.append(frame)
+        self._informative.append(bool(np.abs(pm.vectors([frame])).sum() > 0))
+        out: list[Message] = []
+        if new_place:
+            self._query_places += 1
+            if self._open_place is not None:
+                out += self._close(self._open_place, pm.places[place].traversal)
+            self._open_place = place
         return out
 
     def _close(self, place: int, traversal: str) -> list[Message]:
@@ -183,7 +336,7 @@ class HierarchicalSequence(LoopDetector):
                 self._map.commit(p)  # type: ignore[union-attr]
         return out
 
-    # --- levels 1 and 2 -------------------------------------------------------------------
+    # --- level 1 --------------------------------------------------------------------------
 
     def _iteration(self, places: list[int]) -> list[Message]:
         c = self.config
@@ -192,35 +345,217 @@ class HierarchicalSequence(LoopDetector):
         self._n_iterations += 1
         number = self._n_iterations
         frames = self._frames_of(places)
-        if pm.n_map_places <= c.rho:
+        usable = pm.n_map_places - (c.exclude_recent_places if pm.places[places[-1]].traversal == "stream" else 0)
+        smallest = c.rho if c.mode == "faithful" else 0
+        if usable <= smallest:
             self._count("map_too_small")
-            out = self._dispatch_all(self._consistency.step(number, None, pm.n_map_places))
-            return out + self._no_answer(frames, f"the map has {pm.n_map_places} places, not more than rho={c.rho}")
-        hi = pm.n_map_places - 1
-        if pm.places[places[-1]].traversal == "stream":
-            hi -= c.exclude_recent_places
-        hits, _ = pm.nearest(pm.representative(places[-1]), c.psi, lo=c.rho - 1, hi=hi) if hi >= c.rho - 1 else ([], [])
+            out = self._flush(number, pm.n_map_places)
+            what = f"not more than rho={c.rho}" if c.mode == "faithful" else "none to search"
+            return out + self._no_answer(frames, f"the map has {max(usable, 0)} places, {what}")
+        lo = c.rho - 1 if c.mode == "faithful" else 0
+        hits, _ = pm.nearest(pm.representative(places[-1]), c.psi, lo=lo, hi=usable - 1) if usable - 1 >= lo else ([], [])
+        self._count("searches")
+        if c.mode == "frames":
+            return self._frame_iteration(number, places, frames, np.asarray(hits, dtype=np.int64), usable)
         candidates = candidate_sequences(np.asarray(hits), c.rho)
-        self._counts["searches"] = self._counts.get("searches", 0) + 1
         if not candidates:
             self._count("no_candidate")
-            out = self._dispatch_all(self._consistency.step(number, None, pm.n_map_places))
+            out = self._flush(number, pm.n_map_places)
             return out + self._no_answer(frames, "level 1 found no candidate sequence")
         query_reps = np.stack([pm.representative(p) for p in places])
         candidate_reps = np.stack([pm.map_representatives(range(first, last + 1)) for first, last in candidates])
         costs = sequence_costs(query_reps, candidate_reps, pm.metric)
+        self._sequence_distances += len(candidates) * c.rho
         order = np.argsort(costs, kind="stable")
         ranked = [candidates[k] for k in order]
         self._iterations[number] = _Iteration(number, places, frames, ranked, costs[order])
         return self._dispatch_all(self._consistency.step(number, ranked[0], pm.n_map_places))
+
+    def _flush(self, number: int, n_map_places: int) -> list[Message]:
+        """An iteration without candidates: what waited can no longer be validated by it."""
+        if self.config.mode == "faithful":
+            return self._dispatch_all(self._consistency.step(number, None, n_map_places))
+        self._run = []
+        return self._settle(None)
+
+    # --- frames mode: levels 2 and 3 --------------------------------------------------------
+
+    def _pair_distances(self, position: int, map_positions: np.ndarray) -> np.ndarray:
+        pm = self._map
+        assert pm is not None
+        query = pm.vectors([self._order[position]])
+        return rowwise(np.repeat(query, len(map_positions), axis=0), pm.vectors(pm.map_frames_at(map_positions)), pm.metric)  # type: ignore[arg-type]
+
+    def _frame_iteration(
+        self, number: int, places: list[int], frames: np.ndarray, hits: np.ndarray, usable: int
+    ) -> list[Message]:
+        c = self.config
+        pm = self._map
+        assert pm is not None
+        n_map = pm.map_frame_range(0, usable - 1)[1]
+        map_informative = pm.informative(pm.map_frames_at(np.arange(n_map)))
+        positions = np.asarray([self._position[f] for f in frames], dtype=np.int64)
+        end = int(positions[-1])
+        start = max(0, end - max(c.sequence_frames, len(frames)) + 1)
+        blind = self._blind_stretch(start, end)
+        rows = np.asarray([t for t in range(max(start, blind + 1), end + 1) if self._informative[t]], dtype=np.int64)
+        anchor = self._position[pm.places[places[-1]].frames[0]]
+        anchors = [(anchor, pm.map_frame_range(int(h), int(h))[0], int(h)) for h in hits]
+        if self._track is not None and c.track:
+            track, at = self._track
+            anchors.append((at, int(track.at(at)), -1))
+        trajectories = self._compare(anchors, rows, n_map, map_informative)
+        if not trajectories:
+            self._count("no_candidate")
+            return self._flush(number, pm.n_map_places) + self._no_answer(
+                frames, "no candidate sequence fits in the map" if anchors else "level 1 found no candidate"
+            )
+        ends = np.asarray([int(t.at(end)) for t, _ in trajectories])
+        costs = np.asarray([t.cost for t, _ in trajectories])
+        best = trajectories[0][0]
+        confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if c.confidence == "uniqueness" \
+            else float(pm.similarity(best.cost))
+        consistent = self._track is not None and abs(int(best.at(end)) - int(self._track[0].at(end))) <= c.alpha
+        self._track = (best, end)
+        # evidence accumulates along a run of consistent sequences; it restarts with an
+        # inconsistent one, or after a featureless stretch (earlier frames do not vouch for it)
+        self._run = [*self._run, confidence] if consistent and blind < start else [confidence]
+        record = _FrameAnswer(number, places, frames, positions, trajectories, confidence,
+                              float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative)
+        if not c.isolate:
+            return self._frame_answers(record, "consistent" if consistent else "inconsistent", best, record.confidence)
+        return self._settle(record)
+
+    def _settle(self, record: _FrameAnswer | None) -> list[Message]:
+        """Answer the waiting sequence now that the next one (``record``; None: none will come)
+        is known, and let ``record`` wait. Validated by the next, it is answered along the next
+        one's trajectory, in whose window its frames lie (as SeqSLAM answers the middle of its
+        window), with the evidence of both; consistent with its previous one only, along its
+        own; consistent with neither, it is isolated: confidence 0."""
+        waiting, self._waiting = self._waiting, record
+        if waiting is None:
+            return []
+        own = waiting.trajectories[0][0]
+        if record is not None and record.consistent:
+            return self._frame_answers(waiting, "validated_by_next", record.trajectories[0][0], record.evidence)
+        if waiting.consistent:
+            return self._frame_answers(waiting, "consistent", own, waiting.evidence)
+        return self._frame_answers(waiting, "isolated", own, 0.0)
+
+    def _blind_stretch(self, start: int, end: int) -> int:
+        """The last query position of the latest run of more than alpha featureless frames in
+        ``start..end`` (-1: none). Nothing tells how far the route went while nothing was
+        seen, so a sequence is not compared across such a stretch."""
+        t = end
+        while t >= start:
+            if self._informative[t]:
+                t -= 1
+                continue
+            last = t
+            while t >= start and not self._informative[t]:
+                t -= 1
+            if last - t > self.config.alpha:
+                return last
+        return -1
+
+    def _realign(self, best: Trajectory, positions: np.ndarray, n_map: int, map_informative: np.ndarray) -> Trajectory:
+        """Level 3 (eq. 3.10 on Q's frames): Q's informative frames slid along the chosen
+        trajectory and, as the thesis's template matching, at speed 1 through its middle,
+        -anchor_slack..anchor_slack map frames; the placement they fit best (the chosen
+        trajectory itself on ties, or when a placement leaves the map)."""
+        slack = self.config.anchor_slack
+        rows = np.asarray([t for t in positions.tolist() if self._informative[t]], dtype=np.int64)
+        if not len(rows):
+            return best
+        middle = int(rows[len(rows) // 2])
+        placements = [best]
+        for shift in range(-slack, slack + 1):
+            placements.append(Trajectory(best.cost, middle, int(best.at(middle)) + shift, 1.0, best.rows))
+            if shift:
+                placements.append(Trajectory(best.cost, best.anchor_query, best.anchor_map + shift, best.speed, best.rows))
+        costs = []
+        for placement in placements:
+            paired = placement.at(rows)
+            if not ((paired >= 0) & (paired < n_map)).all():
+                costs.append(np.inf)
+                continue
+            usable = map_informative[paired]
+            costs.append(float(self._pairs.get(rows[usable], paired[usable]).mean()) if usable.any() else np.inf)
+        return placements[int(np.argmin(costs))]
+
+    def _compare(
+        self, anchors: list[tuple[int, int, int]], rows: np.ndarray, n_map: int, map_informative: np.ndarray
+    ) -> list[tuple[Trajectory, int]]:
+        """Level 2, frame by frame: each anchor's best trajectory, best first (ties: level-1 order)."""
+        c = self.config
+        kept = anchors
+        searched = [a for a in anchors if a[2] >= 0]
+        if c.refine and len(searched) > c.refine:
+            speed = np.asarray([min(max(1.0, c.vmin), c.vmax)])
+            screened = []
+            for k, (t, m, _) in enumerate(searched):
+                found = best_trajectory(self._pairs, rows[-c.screen_frames:], t, m, c.anchor_slack, speed, n_map,
+                                        map_informative)
+                if found is not None:
+                    screened.append((found.cost, k))
+            kept = [searched[k] for _, k in sorted(screened)[: c.refine]] + [a for a in anchors if a[2] < 0]
+        found = []
+        for k, (t, m, source) in enumerate(kept):
+            trajectory = best_trajectory(self._pairs, rows, t, m, c.anchor_slack, self._speeds, n_map, map_informative)
+            if trajectory is not None:
+                found.append((trajectory.cost, k, trajectory, source))
+        return [(trajectory, source) for _, _, trajectory, source in sorted(found, key=lambda f: (f[0], f[1]))]
+
+    def _frame_answers(
+        self, record: _FrameAnswer, branch: str, along: Trajectory, confidence: float
+    ) -> list[Message]:
+        """Level 3: Q's frames paired along ``along`` (realigned, with ``realign``)."""
+        pm = self._map
+        assert pm is not None
+        self._count(branch)
+        best, source = record.trajectories[0]
+        placement = along
+        if self.config.realign:
+            placement = self._realign(along, record.positions, record.n_map, record.map_informative)
+        paired = placement.at(record.positions)
+        others = [t.at(record.positions) for t, _ in record.trajectories[1:]]
+        if source < 0:
+            self._count("track_answers")
+        out: list[Message] = [SequenceDecision(
+            iteration=record.number, query_places=record.places, query_frames=record.frames,
+            candidates=np.asarray([[s, int(t.at(record.positions[-1]))] for t, s in record.trajectories],
+                                  dtype=np.int64).reshape(-1, 2),
+            candidate_costs=np.asarray([t.cost for t, _ in record.trajectories], dtype=np.float64),
+            branch=branch, first=int(paired[0]), last=int(paired[-1]), template_cost=best.cost,
+            used_synthetic=source < 0, confidence=confidence, speed=placement.speed,
+        )]
+        for k, frame in enumerate(record.frames.tolist()):
+            if not self._informative[int(record.positions[k])]:
+                self._count("featureless")
+                out.append(LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
+                                      reason="featureless query frame (no edges to describe)"))
+                continue
+            if not 0 <= paired[k] < record.n_map:
+                self._count("outside_map")
+                out.append(LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
+                                      reason="the chosen trajectory leaves the map here"))
+                continue
+            ranked = [int(paired[k]), *(int(o[k]) for o in others if 0 <= o[k] < record.n_map)]
+            ranked = list(dict.fromkeys(ranked))[: self.config.candidates]
+            matched = pm.map_frames_at(np.asarray(ranked, dtype=np.int64))
+            out.append(LoopResult(
+                frame=frame, match=int(matched[0]), confidence=confidence,
+                accepted=confidence >= self._accept, candidates=matched,
+            ))
+        return out
+
+    # --- faithful mode: level 3 -------------------------------------------------------------
 
     def _dispatch_all(self, dispatches: list[Dispatch]) -> list[Message]:
         out: list[Message] = []
         for dispatch in dispatches:
             out += self._level3(dispatch)
         return out
-
-    # --- level 3 --------------------------------------------------------------------------
 
     def _level3(self, dispatch: Dispatch) -> list[Message]:
         pm = self._map
@@ -243,6 +578,7 @@ class HierarchicalSequence(LoopDetector):
             lambda start, stop: pm.vectors(pm.map_frames(start, stop)), pm.metric,
             self._last_matched, dispatch.synthetic,
         )
+        self._sequence_distances += match.n_distances
         first, last = dispatch.sequence
         if match.reason:
             self._count("no_padding")
@@ -265,7 +601,7 @@ class HierarchicalSequence(LoopDetector):
     ) -> list[LoopResult]:
         pm = self._map
         assert pm is not None
-        matched = pm.map_frames(0, pm.n_map_frames)[match.aligned]
+        matched = pm.map_frames_at(match.aligned)
         alternatives = self._alternatives(iteration, len(iteration.frames))
         out = []
         for k, frame in enumerate(iteration.frames.tolist()):
@@ -277,7 +613,7 @@ class HierarchicalSequence(LoopDetector):
             ranked = [int(matched[k]), *(int(a) for a in alternatives[k] if a != matched[k])]
             out.append(LoopResult(
                 frame=frame, match=int(matched[k]), confidence=confidence,
-                accepted=confidence >= self.config.accept_confidence,
+                accepted=confidence >= self._accept,
                 candidates=np.asarray(ranked[: self.config.candidates], dtype=np.int64),
             ))
         return out
@@ -291,8 +627,10 @@ class HierarchicalSequence(LoopDetector):
         for first, last in iteration.candidates[1:]:
             start, stop = pm.map_frame_range(first, last)
             positions = start + np.minimum((np.arange(n) * (stop - start)) // max(n, 1), stop - start - 1)
-            columns.append(pm.map_frames(0, pm.n_map_frames)[positions])
+            columns.append(pm.map_frames_at(positions))
         return [[int(col[k]) for col in columns] for k in range(n)]
+
+    # --- bookkeeping ----------------------------------------------------------------------
 
     def _no_answer(self, frames: np.ndarray, reason: str) -> list[LoopResult]:
         self._counts["no_answer_frames"] = self._counts.get("no_answer_frames", 0) + len(frames)
@@ -307,12 +645,19 @@ class HierarchicalSequence(LoopDetector):
         self._counts[key] = self._counts.get(key, 0) + 1
 
     def statistics(self) -> dict[str, float | int]:
+        search = self._map.search_distances if self._map is not None else 0
+        sequences = self._sequence_distances + self._pairs.computed  # faithful mode's, frames mode's
         stats: dict[str, float | int] = {
             "n_searches": self._counts.get("searches", 0),
             "n_query_sequences": self._n_iterations,
             "n_query_frames": self._query_frames,
+            "n_distances": search + sequences,
+            "n_distances_search": search,
+            "n_distances_sequences": sequences,
         }
-        for key in ("consistent", "validated_by_next", "rebuilt", "unresolved", "synthetic_frames",
-                    "map_too_small", "no_candidate", "no_padding", "featureless", "no_answer_frames"):
+        keys = ("consistent", "validated_by_next", "rebuilt", "unresolved", "synthetic_frames") \
+            if self.config.mode == "faithful" else ("consistent", "validated_by_next", "isolated", "inconsistent",
+                                                     "track_answers", "outside_map")
+        for key in (*keys, "map_too_small", "no_candidate", "no_padding", "featureless", "no_answer_frames"):
             stats[f"n_{key}"] = self._counts.get(key, 0)
         return stats

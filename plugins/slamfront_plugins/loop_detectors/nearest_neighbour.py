@@ -40,6 +40,7 @@ class NearestNeighbour(LoopDetector):
         self._n_reference = 0
         self._n_query = 0
         self._n_searches = 0
+        self._n_distances = 0
         self._metric = "l2"
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
@@ -66,6 +67,7 @@ class NearestNeighbour(LoopDetector):
         if self._vectors is None or usable < 1:
             return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="map too small")
         self._n_searches += 1
+        self._n_distances += usable
         distances = to_one(vector, self._vectors.view[:usable], self._metric)  # type: ignore[arg-type]
         order = smallest(distances, self.config.candidates)  # the stable sort's first ranks, without sorting all
         best = int(order[0])
@@ -86,4 +88,5 @@ class NearestNeighbour(LoopDetector):
             "n_searches": self._n_searches,
             "n_places_reference": self._n_reference,
             "n_places_query": self._n_query,
+            "n_distances": self._n_distances,
         }

@@ -238,11 +238,16 @@ class _SequenceDetector(LoopDetector):
             wanted[starts[(starts >= 0) & (starts < n_ref)]] = True
         return np.flatnonzero(wanted)
 
+    def _distance_count(self) -> int:
+        """Descriptor distances the detector needs: every entry of the difference matrix."""
+        return len(self._reference_frames) * len(self._query_frames)
+
     def statistics(self) -> dict[str, int]:
         return {
             "n_searches": self._n_searches,
             "n_places_reference": len(self._reference_frames),
             "n_places_query": len(self._query_frames),
+            "n_distances": self._distance_count(),
         }
 
 
@@ -326,6 +331,13 @@ class SeqSlamFast(_SequenceDetector):
         gathered = references[nearest].astype(np.float32)
         distances = np.abs(gathered - queries[:, None, :].astype(np.float32)).sum(axis=2, dtype=np.float32)
         return nearest, distances / np.float32(references.shape[1])
+
+    def _distance_count(self) -> int:
+        """Exact neighbours compare every reference; HNSW's own distances inside the index
+        are not counted, only the k recomputed per query."""
+        if self.config.knn == "exact":
+            return super()._distance_count()
+        return min(self.config.k, len(self._reference_frames)) * len(self._query_frames)
 
     def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
         assert self._references is not None

@@ -6,6 +6,17 @@ where ``R(P)`` is the place's first descriptor (its representative) and
 ``S = 1 - D / max_distance`` a similarity in [0, 1] from the L1 distance ``D``;
 otherwise it starts place ``P_{l+1}``. A place never spans two traversals.
 
+nu (Rodrigues 2019 leaves it open) is chosen from the data by default
+(``similarity_threshold: auto``): the value whose places hold on average
+``frames_per_place`` frames (2.26, the mean of Rodrigues 2019's own maps, Table 4.4) on
+the frames it has seen, never on query ground truth. Paired runs choose it from the
+whole reference traversal: reference frames are held without a place until the first
+query frame arrives (or the run ends), then placed with the chosen nu. Runs without a
+reference (one stream) hold their first ``calibration_frames`` frames and choose nu from
+them; it is then kept for the rest of the run. The choice is a pure function of the
+held descriptors, so a replay reproduces it bit for bit; it is logged as a
+``PlaceThreshold`` message and in the run's metrics (``similarity_threshold``).
+
 The map M = (V, E) (§3.1.3): every place that joins the map becomes a vertex, in the
 order it joins; an edge links each vertex to the previous one of the same traversal
 (the route), and :meth:`link` adds a loop-closure edge between two vertices. Places of
@@ -24,17 +35,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
 from slamfront.core.vptree import VPTREE_MIN_PLACES, VPTree, brute_force_knn, vptree_pays
 from slamfront.frame import Traversal
-from slamfront.messages import PlaceAssignment
+from slamfront.messages import Message, PlaceAssignment
 from slamfront.plugin import global_features, require_global_descriptor
 
 
@@ -58,15 +69,21 @@ def place_sizes(vectors: np.ndarray, threshold: float, max_distance: float = 2.0
     return np.asarray(sizes, dtype=np.int64)
 
 
+THESIS_FRAMES_PER_PLACE = (200 / 112 + 646 / 236) / 2
+"""Mean frames per place of Rodrigues 2019's maps (Table 4.4: GPW 200 frames in 112 places,
+UofA 646 in 236): 2.26, the default target of the automatic nu."""
+
+
 def choose_similarity_threshold(
-    vectors: np.ndarray, frames_per_place: float, max_distance: float = 2.0, metric: str = "l1"
+    vectors: np.ndarray, frames_per_place: float, max_distance: float = 2.0, metric: str = "l1", step: float = 0.001
 ) -> float:
-    """The nu on a 0.005 grid whose places average closest to ``frames_per_place`` frames.
+    """The nu on a grid of ``step`` whose places average closest to ``frames_per_place`` frames.
 
     Places shrink as nu grows, so a bisection over the grid finds the crossing; its two
-    neighbours are compared directly.
+    neighbours are compared directly (the lower nu on a tie). Deterministic: the same
+    vectors always give the same nu.
     """
-    grid = np.round(np.arange(0.0, 1.0001, 0.005), 3)
+    grid = np.round(np.arange(0.0, 1.0 + step / 2, step), 6)
 
     def mean_size(index: int) -> float:
         return len(vectors) / len(place_sizes(vectors, float(grid[index]), max_distance, metric))
@@ -80,6 +97,22 @@ def choose_similarity_threshold(
             hi = middle
     best = min((lo, hi), key=lambda i: abs(mean_size(i) - frames_per_place))
     return float(grid[best])
+
+
+@dataclass(frozen=True, eq=False)
+class PlaceThreshold(Message):
+    """The place map's nu: chosen from the data (``auto``) or as given, and the places it made."""
+
+    schema_name: ClassVar[str] = "slamfront.PlaceThreshold"
+    frame: int
+    """The first frame placed with it."""
+    threshold: float
+    auto: bool
+    calibration_frames: int
+    """Frames nu was chosen from (0 when given)."""
+    target_frames_per_place: float
+    frames_per_place: float
+    """Mean frames per place on the calibration frames (NaN when given)."""
 
 
 @dataclass
@@ -102,17 +135,27 @@ class HierarchicalPlaceMap(PlaceMap):
     """Places of similar consecutive frames in a topological map with exact VP-tree search (Rodrigues 2019 §3.1).
 
     A frame joins the current place while its similarity to the place's first
-    descriptor stays >= ``similarity_threshold`` (nu). Places of ``auto_commit``
-    traversals join the searchable map at once; a detector commits the others. Outputs
-    one ``PlaceAssignment`` per frame.
+    descriptor stays >= ``similarity_threshold`` (nu; ``auto``: chosen from the reference
+    traversal, or from the first frames of a stream, to a target of frames per place).
+    Places of ``auto_commit`` traversals join the searchable map at once; a detector
+    commits the others. Outputs one ``PlaceAssignment`` per frame (those of frames held
+    for the calibration all at once, when nu is chosen) and one ``PlaceThreshold``.
     """
 
     name = "hierarchical"
     requires = ("descriptor",)
 
     class Config(PluginConfig):
-        similarity_threshold: float = Field(
-            0.62, ge=0, le=1, description="nu: a frame joins the current place when S(R(P_l), g_t) >= nu"
+        similarity_threshold: float | Literal["auto"] = Field(
+            "auto", description="nu: a frame joins the current place when S(R(P_l), g_t) >= nu; auto: chosen "
+            "from the reference traversal (or the first calibration_frames of a stream) to frames_per_place"
+        )
+        frames_per_place: float = Field(
+            THESIS_FRAMES_PER_PLACE, gt=1,
+            description="auto nu: target mean frames per place (2.26: Rodrigues 2019's maps, Table 4.4)",
+        )
+        calibration_frames: int = Field(
+            200, ge=2, description="auto nu without a reference traversal: stream frames held to choose nu from"
         )
         max_distance: float = Field(
             2.0, gt=0, description="distance at which S reaches 0 (2 = the largest L1 distance of unit-L1 vectors)"
@@ -130,6 +173,12 @@ class HierarchicalPlaceMap(PlaceMap):
         )
         leaf_size: int = Field(32, ge=2, description="VP-tree leaf bucket size")
 
+        @model_validator(mode="after")
+        def _threshold_in_range(self) -> HierarchicalPlaceMap.Config:
+            if self.similarity_threshold != "auto" and not 0 <= self.similarity_threshold <= 1:
+                raise ValueError("similarity_threshold must be 'auto' or a number in [0, 1]")
+            return self
+
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
         self.places: list[Place] = []
@@ -138,9 +187,18 @@ class HierarchicalPlaceMap(PlaceMap):
         self._map_places: list[int] = []  # place id at each map position
         self._map_frames: list[int] = []  # frame indices of the map's places, in map order
         self._map_starts: list[int] = []  # first map-frame position of each map place
+        self._map_frame_array = np.empty(0, dtype=np.int64)  # _map_frames as an array, refreshed when it grew
         self._tree: VPTree | None = None
         self._representatives: GrowingRows | None = None  # of the map places, by map position
         self._metric = "l1"
+        given = self.config.similarity_threshold
+        self.threshold: float | None = None if given == "auto" else float(given)
+        """nu in use; None while the automatic one is still being chosen."""
+        self._held: list[tuple[int, str]] = []  # (frame, traversal) waiting for nu, in order
+        self._informative: list[bool] = []  # per frame: not featureless (its descriptor is not all zeros)
+        self._n_frames = 0
+        self._distance_calls = 0  # level-1 search distances (brute force, or the VP-tree's count)
+        self._calibrated_on = 0  # frames the automatic nu was chosen from
         self._next_search_check = VPTREE_MIN_PLACES
         self.edges: set[tuple[int, int, str]] = set()
         """Map edges ``(position a, position b, kind)`` with a < b; kind ``route`` or ``loop``."""
@@ -150,11 +208,12 @@ class HierarchicalPlaceMap(PlaceMap):
 
     # --- building -------------------------------------------------------------------------
 
-    def process(self, inputs: StageInputs) -> Sequence[PlaceAssignment]:
+    def process(self, inputs: StageInputs) -> Sequence[Message]:
         features = global_features(inputs)
         frame = inputs.frame
-        if frame.index != len(self._place_of_frame):
-            raise PluginError(f"frames must arrive in order: expected {len(self._place_of_frame)}, got {frame.index}")
+        if frame.index != self._n_frames:
+            raise PluginError(f"frames must arrive in order: expected {self._n_frames}, got {frame.index}")
+        self._n_frames += 1
         if self._vectors is None:
             self._vectors = GrowingRows(len(features.vector), dtype=features.vector.dtype)
             self._metric = features.metric
@@ -165,22 +224,64 @@ class HierarchicalPlaceMap(PlaceMap):
             if self.config.search == "vptree":
                 self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]
         self._vectors.append(features.vector)
+        self._informative.append(bool(np.any(features.vector)))
+        if self.threshold is not None:
+            first = [self._given_threshold(frame.index)] if frame.index == 0 else []
+            return [*first, self._assign(frame.index, frame.traversal)]
+        # choosing nu: hold the reference traversal until a query arrives, or a stream's first frames
+        holding_reference = bool(self._held) and self._held[0][1] in self.config.auto_commit
+        if holding_reference and frame.traversal not in self.config.auto_commit:
+            return [*self._calibrate(), self._assign(frame.index, frame.traversal)]
+        self._held.append((frame.index, frame.traversal))
+        if self._held[0][1] in self.config.auto_commit or len(self._held) < self.config.calibration_frames:
+            return []
+        return self._calibrate()
+
+    def finish(self) -> Sequence[Message]:
+        """Frames still held for the calibration (a run shorter than it) are placed now."""
+        return self._calibrate() if self._held else []
+
+    def _calibrate(self) -> list[Message]:
+        """Choose nu from the held frames, then place them with it."""
+        c = self.config
+        frames = [index for index, _ in self._held]
+        vectors = self.vectors(frames)
+        self.threshold = choose_similarity_threshold(vectors, c.frames_per_place, c.max_distance, self._metric)
+        sizes = place_sizes(vectors, self.threshold, c.max_distance, self._metric)
+        out: list[Message] = [PlaceThreshold(
+            frame=frames[0], threshold=self.threshold, auto=True, calibration_frames=len(frames),
+            target_frames_per_place=c.frames_per_place, frames_per_place=len(frames) / len(sizes),
+        )]
+        held, self._held = self._held, []
+        self._calibrated_on = len(frames)
+        return out + [self._assign(index, traversal) for index, traversal in held]
+
+    def _given_threshold(self, frame: int) -> PlaceThreshold:
+        return PlaceThreshold(
+            frame=frame, threshold=float(self.threshold), auto=False, calibration_frames=0,  # type: ignore[arg-type]
+            target_frames_per_place=float("nan"), frames_per_place=float("nan"),
+        )
+
+    def _assign(self, index: int, traversal: str) -> PlaceAssignment:
+        """Frame ``index`` joins the current place or starts a new one (§3.1.2)."""
+        assert self.threshold is not None
+        vector = self._vectors.view[index]  # type: ignore[union-attr]
         current = self.places[-1] if self.places else None
         new_place = (
             current is None
-            or current.traversal != frame.traversal
-            or self.similarity(self.distance(features.vector, self.representative(current.id))) < self.config.similarity_threshold
+            or current.traversal != traversal
+            or self.similarity(self.distance(vector, self.representative(current.id))) < self.threshold
         )
         if new_place:
-            current = Place(id=len(self.places), traversal=frame.traversal)
+            current = Place(id=len(self.places), traversal=traversal)
             self.places.append(current)
-        current.frames.append(frame.index)  # type: ignore[union-attr]
+        current.frames.append(index)  # type: ignore[union-attr]
         self._place_of_frame.append(current.id)  # type: ignore[union-attr]
         if current.map_position >= 0:  # a growing map place: its new frame joins the map too
-            self._map_frames.append(frame.index)
-        elif new_place and frame.traversal in self.config.auto_commit:
+            self._map_frames.append(index)
+        elif new_place and traversal in self.config.auto_commit:
             self.commit(current.id)  # type: ignore[union-attr]
-        return [PlaceAssignment(frame=frame.index, place=current.id, new_place=new_place, n_places=len(self.places))]  # type: ignore[union-attr]
+        return PlaceAssignment(frame=index, place=current.id, new_place=new_place, n_places=len(self.places))  # type: ignore[union-attr]
 
     def commit(self, place_id: int) -> int:
         """Add a place to the map (a vertex, a route edge, the VP-tree); returns its map position.
@@ -260,6 +361,16 @@ class HierarchicalPlaceMap(PlaceMap):
         """Frame indices at map-frame positions ``[start, stop)``."""
         return np.asarray(self._map_frames[start:stop], dtype=np.int64)
 
+    def informative(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n,) bool: which frames have a descriptor that is not all zeros (not featureless)."""
+        return np.asarray(self._informative, dtype=bool)[np.asarray(frames, dtype=np.int64)]
+
+    def map_frames_at(self, positions: np.ndarray) -> np.ndarray:
+        """Frame indices at any map-frame positions (an array of them)."""
+        if len(self._map_frame_array) != len(self._map_frames):
+            self._map_frame_array = np.asarray(self._map_frames, dtype=np.int64)
+        return self._map_frame_array[positions]
+
     def place_offsets(self) -> np.ndarray:
         """(P + 1,) map-frame offsets of the map places (CSR): place p is ``[o[p], o[p+1])``."""
         return np.asarray([*self._map_starts, len(self._map_frames)], dtype=np.int64)
@@ -270,8 +381,18 @@ class HierarchicalPlaceMap(PlaceMap):
         if self._representatives is None or len(self._representatives) == 0:
             return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
         if self._tree is None:
+            last = len(self._representatives) - 1 if hi is None else min(hi, len(self._representatives) - 1)
+            self._distance_calls += max(0, last - lo + 1)
             return brute_force_knn(vector, self._representatives.view, k, self._metric, lo, hi)  # type: ignore[arg-type]
-        return self._tree.knn(vector, k, lo, hi)
+        before = self._tree.distance_calls
+        found = self._tree.knn(vector, k, lo, hi)
+        self._distance_calls += self._tree.distance_calls - before
+        return found
+
+    @property
+    def search_distances(self) -> int:
+        """Descriptor distances computed by :meth:`nearest` so far (what a detector's place search cost)."""
+        return self._distance_calls
 
     def _maybe_grow_tree(self) -> None:
         """``search: auto``: at 10,000 map places and each doubling, keep a VP-tree over the
@@ -289,6 +410,9 @@ class HierarchicalPlaceMap(PlaceMap):
             counts[place.traversal] = counts.get(place.traversal, 0) + 1
             frames[place.traversal] = frames.get(place.traversal, 0) + len(place.frames)
         stats: dict[str, float | int] = {
+            "similarity_threshold": float("nan") if self.threshold is None else self.threshold,
+            "similarity_threshold_auto": int(self.config.similarity_threshold == "auto"),
+            "similarity_threshold_frames": self._calibrated_on,
             "n_places": len(self.places),
             "n_vertices": len(self._map_places),
             "n_edges": len(self.edges),

@@ -1,0 +1,160 @@
+"""Frame-level level 2 of the hierarchical detector (``mode: frames``): candidate sequences
+compared frame by frame, as trajectories through the map frames.
+
+Rodrigues 2019's level 2 compares the j-th query place with the j-th place of each
+candidate (eq. 3.5). Two traversals split the same route into places differently, so
+that pairing is often wrong even for the right candidate; this mode keeps level 1's
+candidates (the search-space reduction) and compares each candidate frame by frame:
+
+- a candidate is an *anchor*, a query position paired with a map-frame position: the
+  first frame of the query place searched at level 1 with the first frame of the map
+  place it hit, or the last answer continued (the *track*, see below);
+- a trajectory through an anchor pairs query position ``t`` with map-frame position
+  ``anchor_map + shift + round((t - anchor_query) * v)``, for shifts in
+  ``-slack..slack`` (a place's frames are not all alike) and speeds ``v`` in
+  ``vmin..vmax`` (SeqSLAM's straight-line trajectories, Milford & Wyeth 2012);
+- its cost is the mean descriptor distance of the pairs over the last ``length``
+  informative query frames (at least half of them must fall inside the map on an
+  informative map frame: a featureless frame, on either side, has nothing to compare and
+  is left out rather than counted as a mismatch);
+- each candidate is worth its best trajectory, and the best candidate answers.
+
+Positions are counted in the detector's own order: query position ``t`` is the t-th
+query frame it has seen, map-frame position ``m`` the m-th frame of the place map in map
+order. Every distance is computed once while its query frame is recent
+(:class:`PairDistances`), and counted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A straight line through the map frames: query position ``t`` pairs with
+    ``anchor_map + round((t - anchor_query) * speed)``; ``cost`` is its mean distance
+    over ``rows`` pairs."""
+
+    cost: float
+    anchor_query: int
+    anchor_map: int
+    speed: float
+    rows: int
+
+    def at(self, positions: np.ndarray | int) -> np.ndarray:
+        """Map-frame positions paired with query positions (may fall outside the map)."""
+        offset = (np.asarray(positions, dtype=np.int64) - self.anchor_query) * self.speed
+        return self.anchor_map + np.floor(offset + 0.5).astype(np.int64)
+
+
+def speeds(vmin: float, vmax: float, length: int) -> np.ndarray:
+    """(V,) speeds from ``vmin`` to ``vmax`` in steps of ``1 / length``: each step moves the
+    far end of a ``length``-frame trajectory by one map frame (SeqSLAM's resolution).
+    Speed 1 is always included when it lies in the range."""
+    step = 1.0 / max(length, 1)
+    values = np.arange(vmin, vmax + step / 2, step)
+    if vmin <= 1.0 <= vmax:
+        values = np.append(values, 1.0)
+    return np.unique(np.round(values, 9))
+
+
+class PairDistances:
+    """Distances between query positions and map-frame positions, each computed once.
+
+    :param compute: ``(t, m) -> (len(m),)`` distances between query position ``t`` and
+        the map-frame positions ``m``.
+    :param keep: query positions older than the newest minus ``keep`` are forgotten.
+    """
+
+    def __init__(self, compute: Callable[[int, np.ndarray], np.ndarray], keep: int) -> None:
+        self._compute = compute
+        self._keep = keep
+        self._rows: dict[int, np.ndarray] = {}
+        self.computed = 0
+        """Distances computed so far (each pair once)."""
+
+    def get(self, t: np.ndarray, m: np.ndarray) -> np.ndarray:
+        """(n,) float64 distances for the pairs ``(t[i], m[i])``; m must be >= 0."""
+        out = np.empty(len(t), dtype=np.float64)
+        for position in np.unique(t).tolist():
+            chosen = t == position
+            wanted = m[chosen]
+            row = self._row(position, int(wanted.max()) + 1)
+            missing = np.unique(wanted[np.isnan(row[wanted])])
+            if len(missing):
+                row[missing] = self._compute(position, missing)
+                self.computed += len(missing)
+            out[chosen] = row[wanted]
+        return out
+
+    def _row(self, position: int, width: int) -> np.ndarray:
+        row = self._rows.get(position)
+        if row is None or len(row) < width:
+            grown = np.full(max(width, 2 * len(row) if row is not None else width), np.nan, dtype=np.float32)
+            if row is not None:
+                grown[: len(row)] = row
+            self._rows[position] = row = grown
+            for old in [p for p in self._rows if p <= position - self._keep]:
+                del self._rows[old]
+        return row
+
+
+def best_trajectory(
+    distances: PairDistances,
+    rows: np.ndarray,
+    anchor_query: int,
+    anchor_map: int,
+    slack: int,
+    velocities: np.ndarray,
+    n_map: int,
+    map_informative: np.ndarray | None = None,
+) -> Trajectory | None:
+    """The lowest-cost trajectory through one anchor.
+
+    :param rows: (R,) query positions compared (informative frames of the window).
+    :param slack: shifts ``-slack..slack`` of the anchor's map position are tried.
+    :param velocities: (V,) speeds tried.
+    :param n_map: map-frame positions ``0..n_map-1`` may be paired.
+    :param map_informative: (>= n_map,) bool per map-frame position, False for featureless
+        frames, which are left out of the pairs (None: all informative).
+    :returns: None when no trajectory keeps at least half of the rows inside the map.
+    """
+    if len(rows) == 0:
+        return None
+    shifts = np.arange(-slack, slack + 1, dtype=np.int64)
+    steps = np.floor((rows[None, :] - anchor_query) * velocities[:, None] + 0.5).astype(np.int64)  # (V, R)
+    positions = anchor_map + shifts[:, None, None] + steps[None, :, :]  # (S, V, R)
+    inside = (positions >= 0) & (positions < n_map)
+    if map_informative is not None:
+        inside[inside] = map_informative[positions[inside]]
+    counts = inside.sum(axis=2)
+    enough = counts >= max(1, (len(rows) + 1) // 2)
+    if not enough.any():
+        return None
+    values = np.zeros(positions.shape, dtype=np.float64)
+    pairs = inside & enough[:, :, None]
+    values[pairs] = distances.get(np.broadcast_to(rows, positions.shape)[pairs], positions[pairs])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        costs = np.where(enough, values.sum(axis=2) / counts, np.inf)
+    s, v = np.unravel_index(int(np.argmin(costs)), costs.shape)
+    return Trajectory(
+        cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
+        speed=float(velocities[v]), rows=int(counts[s, v]),
+    )
+
+
+def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> float:
+    """SeqSLAM's confidence among the candidates: ``1 - best / second``, ``second`` being
+    the lowest cost of a candidate ending more than ``window`` map frames from the best;
+    0 when there is none (nothing to tell the answer apart from)."""
+    far = np.abs(ends - ends[best]) > window
+    if not far.any():
+        return 0.0
+    second = float(costs[far].min())
+    if second <= 0:
+        return 0.0
+    return float(np.clip(1.0 - costs[best] / second, 0.0, 1.0))

@@ -1,0 +1,149 @@
+"""The frame-level mode of the hierarchical detector: trajectories, the distance cache, the
+track that replaces the rebuilt sequence, and the uniqueness confidence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamfront.core.distances import pairwise
+from slamfront.messages import LoopResult
+from slamfront_plugins.loop_detectors.hierarchical_frames import (
+    PairDistances,
+    Trajectory,
+    best_trajectory,
+    speeds,
+    uniqueness,
+)
+from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence, SequenceDecision
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
+from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
+
+
+def _cache(query: np.ndarray, map_vectors: np.ndarray, keep: int = 100) -> PairDistances:
+    return PairDistances(lambda t, m: pairwise(query[t : t + 1], map_vectors[m], "l1")[0], keep)
+
+
+# --- level 2, frame by frame ------------------------------------------------------------------
+
+
+def test_speeds_step_by_one_frame_over_the_sequence_and_include_one() -> None:
+    assert speeds(0.8, 1.2, 10).tolist() == pytest.approx([0.8, 0.9, 1.0, 1.1, 1.2])
+    assert 1.0 in speeds(0.85, 1.3, 40).tolist()
+    assert speeds(1.5, 1.5, 40).tolist() == [1.5]
+
+
+@pytest.mark.parametrize("speed", [0.8, 1.0, 1.2])
+def test_the_best_trajectory_recovers_the_speed_and_the_anchor(speed: float) -> None:
+    map_vectors = route_descriptors(200, 1, seed=3)
+    truth = Trajectory(cost=0.0, anchor_query=30, anchor_map=120, speed=speed, rows=0)
+    query = noisy(map_vectors[truth.at(np.arange(40))], 0.05)  # query position t shows map frame truth.at(t)
+    rows = np.arange(40)
+    # level 1 paired query position 30 with map frame 121: one frame off, inside the slack
+    found = best_trajectory(_cache(query, map_vectors), rows, 30, 121, 2, speeds(0.8, 1.25, 40), len(map_vectors))
+    assert found is not None
+    assert found.speed == pytest.approx(speed) and found.anchor_map == 120 and found.rows == 40
+    assert np.array_equal(found.at(rows), truth.at(rows))
+
+
+def test_rows_outside_the_map_are_left_out_and_half_must_stay_inside() -> None:
+    map_vectors = route_descriptors(50, 1, seed=4)
+    query = noisy(map_vectors[:40], 0.05)
+    cache = _cache(query, map_vectors)
+    # anchored at map frame 5 for query 5: the rows stay inside
+    found = best_trajectory(cache, np.arange(40), 5, 5, 0, np.array([1.0]), 50)
+    assert found is not None and found.rows == 40
+    # shifted so that 30 of 40 rows would fall before the map start: too few inside
+    assert best_trajectory(cache, np.arange(40), 35, 5, 0, np.array([1.0]), 50) is None
+
+
+def test_every_distance_is_computed_once_while_its_query_frame_is_recent() -> None:
+    map_vectors = route_descriptors(60, 1, seed=5)
+    query = noisy(map_vectors, 0.1)
+    cache = _cache(query, map_vectors, keep=10)
+    t = np.array([3, 3, 4, 3])
+    m = np.array([7, 8, 9, 7])
+    expected = [float(pairwise(query[a : a + 1], map_vectors[b : b + 1], "l1")[0, 0]) for a, b in zip(t, m)]
+    assert cache.get(t, m).tolist() == pytest.approx(expected)
+    assert cache.computed == 3  # (3, 7) once
+    cache.get(np.array([4, 3]), np.array([9, 8]))
+    assert cache.computed == 3
+    cache.get(np.array([20]), np.array([1]))  # query position 20 arrives: 3 and 4 are forgotten
+    cache.get(np.array([3]), np.array([7]))
+    assert cache.computed == 5
+
+
+def test_uniqueness_is_one_minus_best_over_the_best_far_candidate() -> None:
+    costs = np.array([0.3, 0.35, 0.5, 0.6])
+    ends = np.array([100, 104, 400, 900])
+    assert uniqueness(costs, ends, 0, window=10) == pytest.approx(1 - 0.3 / 0.5)  # 104 is the same place
+    assert uniqueness(costs[:2], ends[:2], 0, window=10) == 0.0  # nothing far to compare with
+
+
+# --- the detector in frames mode ----------------------------------------------------------------
+
+FRAMES_PER_PLACE = 2
+
+
+def _run(reference: np.ndarray, query: np.ndarray, **detector):  # type: ignore[no-untyped-def]
+    vectors = np.concatenate([reference, query])
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    found = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", **detector))
+    outputs = run_stages(vectors, traversals, place_map, found)
+    results = {m.frame - len(reference): m for m in outputs if isinstance(m, LoopResult)}
+    decisions = [m for m in outputs if isinstance(m, SequenceDecision)]
+    return results, decisions, found
+
+
+def test_the_track_answers_when_level_1_misses_the_place() -> None:
+    reference = route_descriptors(80, FRAMES_PER_PLACE, seed=0)
+    query = noisy(reference[:120], 0.1)
+    # query places 40..44 lose their first frames (the ones level 1 searches with): level 1
+    # searches with a frame that is nowhere in the map, but their other frames still match
+    lost = route_descriptors(120, 1, seed=77)
+    for place in range(40, 45):
+        query[2 * place] = lost[2 * place]
+    results, decisions, detector = _run(reference, query, sequence_frames=20)
+    hit_by_track = [d for d in decisions if d.used_synthetic]
+    assert hit_by_track, "the track never answered"
+    for d in hit_by_track:
+        for frame in d.query_frames.tolist():
+            r = results[frame - len(reference)]
+            assert r.match < 0 or abs(r.match - (frame - len(reference))) <= 1
+    assert detector.statistics()["n_track_answers"] == len(hit_by_track)
+
+
+def test_aliasing_ranks_below_true_matches() -> None:
+    # the reference repeats a 40-frame stretch 200 frames later (aliasing); the query starts
+    # inside it, so its first sequences have two equally good answers far apart
+    route = route_descriptors(160, FRAMES_PER_PLACE, seed=1)
+    route[240:280] = route[60:100]
+    query = noisy(route[60:200], 0.15, seed=3)
+    results, decisions, _ = _run(route, query, sequence_frames=20)
+    n = len(route)
+    # sequences answered while both their own 20 compared frames and the next sequence's lie
+    # in the repeated stretch (query 0..39; answers come with the next sequence)
+    aliased = [d for d in decisions if d.query_frames[-1] - n < 30]
+    assert aliased and max(d.confidence for d in aliased) < 0.05
+    # every wrong answer ranks below every correct one: recall at 100 % precision = the ceiling
+    answered = [(r.confidence, abs(r.match - (k + 60)) <= 1) for k, r in results.items() if r.match >= 0]
+    lowest_correct = min(c for c, ok in answered if ok)
+    assert all(c < lowest_correct or c == 0.0 for c, ok in answered if not ok)
+    assert np.mean([ok for _, ok in answered if True]) >= 0.7
+    distinct = [r.confidence for k, r in results.items() if k >= 80 and r.match >= 0]
+    assert min(distinct) > 0.05
+
+
+def test_an_answer_consistent_with_neither_neighbour_is_isolated_with_no_confidence() -> None:
+    reference = route_descriptors(60, FRAMES_PER_PLACE, seed=0)
+    detour = route_descriptors(6, FRAMES_PER_PLACE, seed=99)
+    query = noisy(np.concatenate([reference[:40], detour, reference[52:100]]), 0.1)
+    results, decisions, detector = _run(reference, query, sequence_frames=10)
+    isolated = [d for d in decisions if d.branch == "isolated"]
+    assert isolated and all(d.confidence == 0.0 for d in isolated)
+    for d in isolated:
+        assert all(results[f - len(reference)].confidence == 0.0 for f in d.query_frames.tolist())
+    assert detector.statistics()["n_isolated"] == len(isolated)
+    back = [r for k, r in results.items() if k >= 52 + 20 and r.match >= 0]
+    assert back and all(abs(r.match - (k - 40 - 12 + 52)) <= 1 for k, r in results.items() if k >= 72 and r.match >= 0)
