@@ -7,7 +7,8 @@ and the real RGB-D samples.
    matching (distance threshold + RANSAC) and with Lowe's ratio test added (the
    localizer's default). Keyframe-pose and PnP-refined scores come from the same run.
 2. The same recipe with ORB on worlds 0-3 (another of them as the unknown place): mean
-   and spread.
+   and spread; and on held-out worlds (``--held-out``, 21-23 by default) that no choice
+   of the localizer (its confidence was fitted on worlds 11-16) nor any earlier table used.
 3. Unrelated images: a map of one image of ``images/loop10``, a query from an RGB-D
    sample, and the other way round, every pair (300): how many the localizer calls an
    unknown place, with its defaults and with the guard it had before (the paper's
@@ -18,6 +19,7 @@ and the real RGB-D samples.
    loop10 and of the two other samples are queried too.
 
 Run: nice .venv/bin/python benchmarks/bench_localization.py [--quick] [--descriptors orb,sift] [--worlds 0,1,2]
+[--held-out 21,22,23]
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ DESCRIPTORS = ("orb", "sift", "brisk", "akaze")
 MATCHING = {"paper": "null", "paper + ratio 0.8 (default)": "0.8"}
 SAMPLES = ("redwood_localize", "room_localize", "icl_localize")
 WORLDS = (0, 1, 2, 3)
+HELD_OUT = (21, 22, 23)
 MAIN = "source.params.main.params"
 
 # Barbosa 2017, tables 5-8 (TUM RGB-D; SURF was in OpenCV 3.0's contrib then)
@@ -197,9 +200,12 @@ def main() -> None:
     parser.add_argument("--descriptors", default=",".join(DESCRIPTORS), help="comma-separated (default: %(default)s)")
     parser.add_argument("--worlds", default=",".join(map(str, WORLDS)),
                         help="comma-separated world seeds of the second table (default: %(default)s)")
+    parser.add_argument("--held-out", default=",".join(map(str, HELD_OUT)),
+                        help="comma-separated world seeds of the held-out table; empty: none (default: %(default)s)")
     args = parser.parse_args()
     descriptors = ("orb",) if args.quick else tuple(args.descriptors.split(","))
     seeds = tuple(int(s) for s in args.worlds.split(","))
+    held_out = tuple(int(s) for s in args.held_out.split(",") if s)
     kidnapped_table, shipped = kidnapped(descriptors)
     load = os.getloadavg()[0]
     body = "\n\n".join([
@@ -218,6 +224,8 @@ def main() -> None:
         kidnapped_table,
         "## The same recipe (ORB, default matching) on other worlds",
         worlds(seeds, shipped) if not args.quick else "(skipped with --quick)",
+        "## Held-out worlds (seeds used by no earlier table and no choice of the localizer)",
+        worlds(held_out, None) if held_out and not args.quick else "(none asked for)",
         "## Unrelated images: loop10 against the RGB-D samples, every pair, both ways",
         unrelated(),
         "## Real RGB-D samples (5 frames each): keyframes and queries from the same sequence, other scenes queried too",

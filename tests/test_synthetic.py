@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from slamfront_plugins.sources.synthetic import SyntheticWorld
-from slamfront_plugins.sources.synthetic_world import Route
+from slamfront_plugins.sources.synthetic_world import Lighting, Route, StreetWorld
 
 SMALL = dict(frames_per_traversal=30, route_length_m=90, image_width=64, image_height=48)
 
@@ -77,3 +77,19 @@ def test_route_is_closed_and_has_requested_length() -> None:
     steps = np.linalg.norm(np.diff(pos, axis=0), axis=1)
     assert np.allclose(steps, s[1] - s[0], rtol=1e-3)  # unit speed everywhere, corners included
     assert np.allclose(np.linalg.norm(head, axis=1), 1.0)
+
+
+def test_own_patterns_give_each_world_its_own_road_and_facade_texture() -> None:
+    """By default two worlds share the road and the n-th building's bricks and letters at a
+    place (what made another world's frames match as the same place); ``own_patterns`` seeds them."""
+    points = np.stack([np.linspace(-20, 20, 500), np.linspace(-5, 5, 500), np.zeros(500)], axis=1)
+    day = Lighting.of("day")
+    shared = [StreetWorld(seed, 90.0) for seed in (0, 1)]
+    own = [StreetWorld(seed, 90.0, own_patterns=True) for seed in (0, 1)]
+    assert np.array_equal(shared[0]._ground_colour(points, day), shared[1]._ground_colour(points, day))
+    assert not np.allclose(own[0]._ground_colour(points, day), own[1]._ground_colour(points, day))
+    cells = (np.arange(50), np.arange(50) * 3)
+    assert np.array_equal(shared[0]._pattern(*cells), shared[1]._pattern(*cells))
+    assert np.mean(own[0]._pattern(*cells) == own[1]._pattern(*cells)) < 0.1
+    # a world's own patterns are the same in every rendering of it
+    assert np.array_equal(own[0]._pattern(*cells), StreetWorld(0, 90.0, own_patterns=True)._pattern(*cells))

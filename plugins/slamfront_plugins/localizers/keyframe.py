@@ -25,9 +25,10 @@ from slamfront_plugins.localizers.keyframe_map import Ranked, TopologicalMap, Vi
 logger = logging.getLogger(__name__)
 
 # Fitted by benchmarks/bench_localization_confidence.py on synthetic worlds 11-16 (ORB, the
-# default matching), which no reported number uses; columns as slamfront.core.confidence.EVIDENCE.
-CONFIDENCE_WEIGHTS = (3.466, 0.733, 0.1873, 1.313)
-CONFIDENCE_BIAS = -14.03
+# default matching, each world with its own surface patterns), which no reported number uses;
+# columns as slamfront.core.confidence.EVIDENCE.
+CONFIDENCE_WEIGHTS = (3.907, 0.8658, 0.32, 1.496)
+CONFIDENCE_BIAS = -14.85
 
 
 def _localizer_matching() -> MatchingConfig:

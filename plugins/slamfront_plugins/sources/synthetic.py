@@ -59,6 +59,10 @@ class SyntheticWorld(Source):
             False, description="give the query traversal (paired) or the whole stream in a random order (kidnapped robot)"
         )
         shuffle_seed: int = Field(0, description="seed of the shuffled order")
+        own_patterns: bool = Field(
+            False, description="surface patterns (road, bricks, signs) depend on the world seed too; false: on the place "
+            "only, so two worlds share them at one place of the route",
+        )
 
         # sizes a recipe (or a log's recipe) can make absurd, checked before anything is allocated
         @field_validator("frames_per_traversal")
@@ -95,7 +99,8 @@ class SyntheticWorld(Source):
 
     @cached_property
     def world(self) -> StreetWorld:
-        return StreetWorld(self.config.seed, self.config.route_length_m, self.config.street_width_m)
+        c = self.config
+        return StreetWorld(c.seed, c.route_length_m, c.street_width_m, c.own_patterns)
 
     @property
     def camera(self) -> Camera:

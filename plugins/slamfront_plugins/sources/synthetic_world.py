@@ -150,9 +150,16 @@ class StreetWorld:
     :param seed: everything random in the world derives from it.
     :param route_length_m: approximate length of the closed street.
     :param street_width_m: distance between the two building rows.
+    :param own_patterns: the surface patterns (road, bricks, windows, signs) derive from
+        ``seed`` too. Otherwise they depend on the place only, as they always did: the
+        n-th building of every world carries the same bricks and sign letters and every
+        world has the same road, so two worlds' frames of one place of the route share
+        texture that matches geometrically.
     """
 
-    def __init__(self, seed: int, route_length_m: float = 400.0, street_width_m: float = 10.0) -> None:
+    def __init__(
+        self, seed: int, route_length_m: float = 400.0, street_width_m: float = 10.0, own_patterns: bool = False
+    ) -> None:
         rng = np.random.default_rng(seed)
         aspect = 1.6
         height = route_length_m / (2 * (aspect + 1))
@@ -163,6 +170,7 @@ class StreetWorld:
         self.route = Route(width * scale, height * scale, radius * scale)
         self.street_width = street_width_m
         self.seed = seed
+        self.own_patterns = own_patterns
         self._triangles: list[np.ndarray] = []
         self._tri_kind: list[int] = []
         self._tri_building: list[int] = []
@@ -343,6 +351,12 @@ class StreetWorld:
         depth_out = np.where(np.isfinite(depth) & (depth <= max_depth_m), depth, 0.0).astype(np.float32)
         return rgb, depth_out
 
+    def _pattern(self, *keys: np.ndarray) -> np.ndarray:
+        """:func:`_hash01` of a surface pattern's cell keys (and of the world seed with ``own_patterns``)."""
+        if self.own_patterns:
+            keys = (np.full(np.broadcast(*keys).shape, self.seed, dtype=np.int64), *keys)
+        return _hash01(*keys)
+
     def _sky(self, dirs: np.ndarray, lighting: Lighting) -> np.ndarray:
         elevation = dirs[..., 2] / np.linalg.norm(dirs, axis=-1)
         blend = np.clip(elevation * 2.5, 0.0, 1.0)[..., None]
@@ -360,7 +374,7 @@ class StreetWorld:
         z = points[:, 2]
         albedo = f.wall_rgb[b].copy()
         # brick-like noise: 0.25 x 0.12 m cells
-        cell = _hash01(b, np.floor(s / 0.25 + 0.5 * (np.floor(z / 0.12) % 2)), np.floor(z / 0.12))
+        cell = self._pattern(b, np.floor(s / 0.25 + 0.5 * (np.floor(z / 0.12) % 2)), np.floor(z / 0.12))
         albedo *= (1.0 - f.brick[b] + 2 * f.brick[b] * cell)[:, None]
         # horizontal stripes between storeys
         stripe = (f.stripes[b] > 0) & (np.mod(z - _SHOP_HEIGHT, _STOREY) < 0.18 * f.stripes[b]) & (z > _SHOP_HEIGHT)
@@ -371,17 +385,17 @@ class StreetWorld:
         w = np.mod(z - _SHOP_HEIGHT, _STOREY) / _STOREY
         window = (z > _SHOP_HEIGHT + 0.3) & (u > 0.5 - f.window_width[b] / 2) & (u < 0.5 + f.window_width[b] / 2)
         window &= (w > 0.25) & (w < 0.25 + f.window_height[b])
-        window_id = _hash01(b, np.floor(s / spacing), np.floor((z - _SHOP_HEIGHT) / _STOREY))
+        window_id = self._pattern(b, np.floor(s / spacing), np.floor((z - _SHOP_HEIGHT) / _STOREY))
         glass = np.array([0.16, 0.2, 0.26]) + 0.18 * window_id[:, None]
         albedo[window] = glass[window]
         # shop front: a coloured band with a big display window and a sign above it
         shop = z < _SHOP_HEIGHT
         albedo[shop] = f.shop_rgb[b[shop]] * (0.85 + 0.3 * cell[shop, None])
         display = shop & (z > 0.5) & (z < 2.6) & (np.mod(s, 4.0) > 0.6)
-        albedo[display] = np.array([0.12, 0.14, 0.16]) + 0.25 * _hash01(b[display], np.floor(s[display] / 4.0))[:, None]
+        albedo[display] = np.array([0.12, 0.14, 0.16]) + 0.25 * self._pattern(b[display], np.floor(s[display] / 4.0))[:, None]
         sign_pos = np.mod(s / 11.0 + f.sign_start[b], 1.0)
         sign = (z > 2.75) & (z < 3.4) & (sign_pos < f.sign_length[b])
-        letters = _hash01(b, np.floor(s * 3.0)) > 0.45
+        letters = self._pattern(b, np.floor(s * 3.0)) > 0.45
         albedo[sign] = np.where(letters[sign, None], f.sign_rgb[b[sign]], 1.0 - f.sign_rgb[b[sign]])
         colour = self._shade(albedo, normals, lighting)
         if lighting.window_lit_fraction > 0:
@@ -393,12 +407,12 @@ class StreetWorld:
 
     def _ground_colour(self, points: np.ndarray, lighting: Lighting) -> np.ndarray:
         x, y = points[:, 0], points[:, 1]
-        coarse = _hash01(np.floor(x / 1.5), np.floor(y / 1.5))
-        fine = _hash01(np.floor(x / 0.2), np.floor(y / 0.2))
+        coarse = self._pattern(np.floor(x / 1.5), np.floor(y / 1.5))
+        fine = self._pattern(np.floor(x / 0.2), np.floor(y / 0.2))
         grey = 0.25 + 0.08 * coarse + 0.06 * fine
         albedo = np.stack([grey, grey, grey * 1.02], axis=1)
         # manhole covers and patches make the road locally distinctive
-        patch = _hash01(np.floor(x / 4.0) + 7, np.floor(y / 4.0) - 3) > 0.93
+        patch = self._pattern(np.floor(x / 4.0) + 7, np.floor(y / 4.0) - 3) > 0.93
         albedo[patch] *= 0.6
         up = np.tile([0.0, 0.0, 1.0], (len(points), 1))
         return self._shade(albedo, up, lighting)
