@@ -8,7 +8,7 @@ and the real RGB-D samples.
    localizer's default). Keyframe-pose and PnP-refined scores come from the same run.
 2. The same recipe with ORB on worlds 0-3 (another of them as the unknown place): mean
    and spread; and on held-out worlds (``--held-out``, 21-23 by default) that no choice
-   of the localizer (its confidence was fitted on worlds 11-16) nor any earlier table used.
+   of the localizer (its confidence was fitted on worlds 11-16 and 31-36) nor any earlier table used.
 3. Unrelated images: a map of one image of ``images/loop10``, a query from an RGB-D
    sample, and the other way round, every pair (300): how many the localizer calls an
    unknown place, with its defaults and with the guard it had before (the paper's

@@ -1,11 +1,13 @@
 """The keyframe localizer's confidence: which evidence separates right from wrong answers,
 and the default weights and threshold, fitted on data no reported number uses.
 
-Calibration data: synthetic street worlds 11, 13 and 15 (never used in a test, recipe,
-benchmark table or the results; the reported runs use worlds 0-3 and the held-out
-worlds 21-23), each as the ``synthetic_localize`` recipe renders it (a 200 m route, 200
-frames a traversal, 320x240, ORB 500, the localizer's default matching), with world
-seed + 1 as the unknown place. Every world here draws its own surface patterns
+Calibration data: synthetic street worlds 11, 13, 15, 31, 33 and 35 (never used in a
+test, recipe, benchmark table or the results; the reported runs use worlds 0-3 and the
+held-out worlds 24-26; worlds 31-36 were added, before any result with them was seen,
+because the fit on 11-16 alone was slightly strict on held-out worlds 21-23), each as
+the ``synthetic_localize`` recipe renders it (a 200 m route, 200 frames a traversal,
+320x240, ORB 500, the localizer's default matching), with world seed + 1 as the unknown
+place. Every world here draws its own surface patterns
 (``own_patterns``; the recipe gives them to its unknown world): without them two worlds
 share their road and the n-th building's bricks and sign letters at the same place of the
 route, "unknown" frames of the next world match the keyframe there with up to 50
@@ -57,7 +59,7 @@ from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
 from slamfront_plugins.localizers.keyframe import KeyframeLocalizer  # noqa: E402
 from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402
 
-SEEDS = (11, 13, 15)
+SEEDS = (11, 13, 15, 31, 33, 35)
 FRAMES = 200
 
 

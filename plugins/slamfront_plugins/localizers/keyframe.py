@@ -24,11 +24,11 @@ from slamfront_plugins.localizers.keyframe_map import Ranked, TopologicalMap, Vi
 
 logger = logging.getLogger(__name__)
 
-# Fitted by benchmarks/bench_localization_confidence.py on synthetic worlds 11-16 (ORB, the
+# Fitted by benchmarks/bench_localization_confidence.py on synthetic worlds 11-16 and 31-36 (ORB, the
 # default matching, each world with its own surface patterns), which no reported number uses;
 # columns as slamfront.core.confidence.EVIDENCE.
-CONFIDENCE_WEIGHTS = (3.907, 0.8658, 0.32, 1.496)
-CONFIDENCE_BIAS = -14.85
+CONFIDENCE_WEIGHTS = (3.593, 0.5685, 0.2291, 1.703)
+CONFIDENCE_BIAS = -13.41
 
 
 def _localizer_matching() -> MatchingConfig:
