@@ -147,3 +147,46 @@ def test_an_answer_consistent_with_neither_neighbour_is_isolated_with_no_confide
     assert detector.statistics()["n_isolated"] == len(isolated)
     back = [r for k, r in results.items() if k >= 52 + 20 and r.match >= 0]
     assert back and all(abs(r.match - (k - 40 - 12 + 52)) <= 1 for k, r in results.items() if k >= 72 and r.match >= 0)
+
+
+# --- level 3: realignment of Q ------------------------------------------------------------------
+
+
+def _realigner(query: np.ndarray, map_vectors: np.ndarray, slack: int = 2) -> HierarchicalSequence:
+    """A frames-mode detector whose level 3 compares ``query`` (by position) with ``map_vectors``."""
+    detector = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", anchor_slack=slack))
+    detector._pairs = _cache(query, map_vectors, keep=1000)
+    detector._informative = [True] * len(query)
+    return detector
+
+
+def test_q_reaching_back_before_the_next_window_is_realigned_along_its_own_trajectory() -> None:
+    # query position t shows map frame t; Q is positions 20..59. The next sequence's line is
+    # right at its own end (position 75 -> 75) but 10 % too fast, so extended back over Q it
+    # misses by up to 6 frames, more than the slack; Q's own line is right.
+    map_vectors = route_descriptors(100, 1, seed=11)
+    query = noisy(map_vectors, 0.05)
+    detector = _realigner(query, map_vectors)
+    q = np.arange(20, 60)
+    informative = np.ones(100, dtype=bool)
+    following = Trajectory(cost=0.0, anchor_query=75, anchor_map=75, speed=1.1, rows=40)
+    own = Trajectory(cost=0.0, anchor_query=59, anchor_map=59, speed=1.0, rows=40)
+    alone = detector._realign([following], q, 100, informative)
+    assert np.abs(alone.at(q) - q).max() > 2  # the failure the own trajectory is there for
+    both = detector._realign([following, own], q, 100, informative)
+    assert np.array_equal(both.at(q), q)
+
+
+def test_a_placement_may_leave_the_map_when_half_of_q_stays_inside() -> None:
+    # the map ends at frame 49 while Q (positions 40..59, showing map frames 40..59 of a longer
+    # route) goes on: the chosen line is 2 frames off; the speed-1 placement that fits leaves
+    # the map for Q's last 10 frames and is scored on the 10 inside
+    route = route_descriptors(80, 1, seed=12)
+    query = noisy(route, 0.05)
+    detector = _realigner(query, route[:50])
+    q = np.arange(40, 60)
+    chosen = Trajectory(cost=0.0, anchor_query=40, anchor_map=38, speed=1.0, rows=10)
+    placed = detector._realign([chosen], q, 50, np.ones(50, dtype=bool))
+    assert np.array_equal(placed.at(q[:10]), q[:10])
+    # fewer than half inside: not a placement
+    assert detector._realign([chosen], np.arange(40, 70), 50, np.ones(50, dtype=bool)) == chosen

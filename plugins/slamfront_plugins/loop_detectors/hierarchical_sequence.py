@@ -157,6 +157,8 @@ class _FrameAnswer:
     """Map-frame positions 0..n_map-1 could be paired when it was compared."""
     map_informative: np.ndarray
     """(n_map,) bool, the map frames that were not featureless then."""
+    window_start: int
+    """The first query position its trajectories were compared over."""
 
 
 class HierarchicalSequence(LoopDetector):
@@ -421,9 +423,10 @@ class HierarchicalSequence(LoopDetector):
         # inconsistent one, or after a featureless stretch (earlier frames do not vouch for it)
         self._run = [*self._run, confidence] if consistent and blind < start else [confidence]
         record = _FrameAnswer(number, places, frames, positions, trajectories, confidence,
-                              float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative)
+                              float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative,
+                              int(rows[0]) if len(rows) else start)
         if not c.isolate:
-            return self._frame_answers(record, "consistent" if consistent else "inconsistent", best, record.confidence)
+            return self._frame_answers(record, "consistent" if consistent else "inconsistent", [best], record.confidence)
         return self._settle(record)
 
     def _settle(self, record: _FrameAnswer | None) -> list[Message]:
@@ -437,10 +440,17 @@ class HierarchicalSequence(LoopDetector):
             return []
         own = waiting.trajectories[0][0]
         if record is not None and record.consistent:
-            return self._frame_answers(waiting, "validated_by_next", record.trajectories[0][0], record.evidence)
+            along = [record.trajectories[0][0]]
+            # Q reaching back before the next window far enough for a straight line extended
+            # there to miss by more than the slack realignment corrects (speeds differ by up
+            # to vmax - vmin): Q's own trajectory, whose window holds all of Q, is tried too
+            c = self.config
+            if (record.window_start - int(waiting.positions[0])) * (c.vmax - c.vmin) > c.anchor_slack:
+                along.append(own)
+            return self._frame_answers(waiting, "validated_by_next", along, record.evidence)
         if waiting.consistent:
-            return self._frame_answers(waiting, "consistent", own, waiting.evidence)
-        return self._frame_answers(waiting, "isolated", own, 0.0)
+            return self._frame_answers(waiting, "consistent", [own], waiting.evidence)
+        return self._frame_answers(waiting, "isolated", [own], 0.0)
 
     def _blind_stretch(self, start: int, end: int) -> int:
         """The last query position of the latest run of more than alpha featureless frames in
@@ -458,29 +468,44 @@ class HierarchicalSequence(LoopDetector):
                 return last
         return -1
 
-    def _realign(self, best: Trajectory, positions: np.ndarray, n_map: int, map_informative: np.ndarray) -> Trajectory:
+    def _realign(
+        self, chosen: list[Trajectory], positions: np.ndarray, n_map: int, map_informative: np.ndarray
+    ) -> Trajectory:
         """Level 3 (eq. 3.10 on Q's frames): Q's informative frames slid along the chosen
-        trajectory and, as the thesis's template matching, at speed 1 through its middle,
-        -anchor_slack..anchor_slack map frames; the placement they fit best (the chosen
-        trajectory itself on ties, or when a placement leaves the map)."""
+        trajectories and, as the thesis's template matching, at speed 1 through their
+        middle, -anchor_slack..anchor_slack map frames; the placement they fit best.
+
+        ``chosen`` is the trajectory answered along (the next sequence's when it validated
+        this one), and Q's own when the next sequence's window does not reach far enough
+        back to Q's first frame (a long Q in a slowly changing stretch): extended beyond its
+        window a straight line drifts by up to ``vmax - vmin`` frames per frame. A placement may leave the
+        map (the route goes on past the map's end, or past a stretch the map holds
+        elsewhere) as long as at least half of Q's frames stay inside, as in level 2; it is
+        scored on those. Ties: the first tried."""
         slack = self.config.anchor_slack
         rows = np.asarray([t for t in positions.tolist() if self._informative[t]], dtype=np.int64)
         if not len(rows):
-            return best
+            return chosen[0]
         middle = int(rows[len(rows) // 2])
-        placements = [best]
-        for shift in range(-slack, slack + 1):
-            placements.append(Trajectory(best.cost, middle, int(best.at(middle)) + shift, 1.0, best.rows))
-            if shift:
-                placements.append(Trajectory(best.cost, best.anchor_query, best.anchor_map + shift, best.speed, best.rows))
+        placements: list[Trajectory] = []
+        for trajectory in dict.fromkeys(chosen):
+            placements.append(trajectory)
+            for shift in range(-slack, slack + 1):
+                placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift, 1.0,
+                                             trajectory.rows))
+                if shift:
+                    placements.append(Trajectory(trajectory.cost, trajectory.anchor_query,
+                                                 trajectory.anchor_map + shift, trajectory.speed, trajectory.rows))
         costs = []
+        enough = max(1, (len(rows) + 1) // 2)
         for placement in placements:
             paired = placement.at(rows)
-            if not ((paired >= 0) & (paired < n_map)).all():
-                costs.append(np.inf)
-                continue
-            usable = map_informative[paired]
-            costs.append(float(self._pairs.get(rows[usable], paired[usable]).mean()) if usable.any() else np.inf)
+            usable = (paired >= 0) & (paired < n_map)
+            usable[usable] = map_informative[paired[usable]]
+            costs.append(float(self._pairs.get(rows[usable], paired[usable]).mean()) if usable.sum() >= enough
+                         else np.inf)
+        if not np.isfinite(min(costs)):
+            return chosen[0]
         return placements[int(np.argmin(costs))]
 
     def _compare(
@@ -507,14 +532,14 @@ class HierarchicalSequence(LoopDetector):
         return [(trajectory, source) for _, _, trajectory, source in sorted(found, key=lambda f: (f[0], f[1]))]
 
     def _frame_answers(
-        self, record: _FrameAnswer, branch: str, along: Trajectory, confidence: float
+        self, record: _FrameAnswer, branch: str, along: list[Trajectory], confidence: float
     ) -> list[Message]:
-        """Level 3: Q's frames paired along ``along`` (realigned, with ``realign``)."""
+        """Level 3: Q's frames paired along ``along[0]``, or realigned along ``along`` (``realign``)."""
         pm = self._map
         assert pm is not None
         self._count(branch)
         best, source = record.trajectories[0]
-        placement = along
+        placement = along[0]
         if self.config.realign:
             placement = self._realign(along, record.positions, record.n_map, record.map_informative)
         paired = placement.at(record.positions)
