@@ -443,9 +443,12 @@ class HierarchicalSequence(LoopDetector):
             along = [record.trajectories[0][0]]
             # Q reaching back before the next window far enough for a straight line extended
             # there to miss by more than the slack realignment corrects (speeds differ by up
-            # to vmax - vmin): Q's own trajectory, whose window holds all of Q, is tried too
+            # to vmax - vmin): Q's own trajectory is tried too when its own window holds all of
+            # Q (not when a featureless stretch cut it short)
             c = self.config
-            if (record.window_start - int(waiting.positions[0])) * (c.vmax - c.vmin) > c.anchor_slack:
+            seen = [int(t) for t in waiting.positions if self._informative[int(t)]]
+            if seen and (record.window_start - seen[0]) * (c.vmax - c.vmin) > c.anchor_slack \
+                    and waiting.window_start <= seen[0]:
                 along.append(own)
             return self._frame_answers(waiting, "validated_by_next", along, record.evidence)
         if waiting.consistent:
