@@ -190,3 +190,35 @@ def test_a_placement_may_leave_the_map_when_half_of_q_stays_inside() -> None:
     assert np.array_equal(placed.at(q[:10]), q[:10])
     # fewer than half inside: not a placement
     assert detector._realign([chosen], np.arange(40, 70), 50, np.ones(50, dtype=bool)) == chosen
+
+
+# --- the confidence of a stream -----------------------------------------------------------------
+
+
+def _stream_confidences(kind: str) -> tuple[list[float], list[float]]:
+    """A street driven twice in one stream; its first lap holds a look-alike stretch (30
+    frames resembling frames 20-49, more changed than a revisit). Returns the confidences
+    of the correct answers (second lap, true revisit) and of every wrong one (first-lap
+    frames answered with an older frame, look-alike included)."""
+    lap = route_descriptors(100, 2, seed=5)
+    lap[140:170] = noisy(lap[20:50], 0.3, seed=8)
+    vectors = np.concatenate([lap, noisy(lap, 0.1, seed=9)])
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    detector = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", confidence=kind, sequence_frames=20))
+    outputs = run_stages(vectors, ["stream"] * len(vectors), place_map, detector)
+    n = len(lap)
+    right, wrong = [], []
+    for r in (m for m in outputs if isinstance(m, LoopResult) and m.match >= 0):
+        (right if r.frame >= n and abs(r.match - (r.frame - n)) <= 2 else wrong).append(r.confidence)
+    return right, wrong
+
+
+def test_in_a_stream_look_alikes_rank_below_revisits() -> None:
+    # auto resolves to eq. 3.14's distance confidence in a stream: every wrong answer of the
+    # first lap (the look-alike stretch too) ranks below every true revisit
+    right, wrong = _stream_confidences("auto")
+    assert len(right) >= 180 and wrong
+    assert max(wrong) < min(right)
+    # uniqueness cannot tell: a first-lap answer is as unique among its candidates as a revisit
+    right, wrong = _stream_confidences("uniqueness")
+    assert sum(c >= min(right) for c in wrong) >= 5

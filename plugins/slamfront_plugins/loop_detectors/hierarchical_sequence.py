@@ -29,9 +29,11 @@ places nearest to ``R(q_rho)`` (exact search) give the candidates. Two modes dif
    from the data. Temporal consistency (alpha, in frames) works as in Alg. 3: an answer
    inconsistent with the previous one waits for the next iteration; validated by it,
    it is answered, otherwise it is answered as *isolated* with confidence 0;
-3. level 3: each frame of Q is paired along the best trajectory. The confidence is the
-   best trajectory's uniqueness among the candidates, ``1 - cost / second`` (second:
-   the best candidate ending more than ``uniqueness_window`` frames away), as SeqSLAM's.
+3. level 3: each frame of Q is paired along the best trajectory. The confidence is, for
+   paired traversals, the best trajectory's uniqueness among the candidates,
+   ``1 - cost / second`` (second: the best candidate ending more than
+   ``uniqueness_window`` frames away), as SeqSLAM's; in a stream, where most queries have
+   no true match, eq. 3.14's ``1 - v / max_distance`` (``confidence: auto``).
 
 Answers come out when Q completes, or one iteration later when its sequence had to
 wait. Every query frame ends with a ``LoopResult``: a match and a confidence, or
@@ -219,9 +221,10 @@ class HierarchicalSequence(LoopDetector):
         )
         screen_frames: int = Field(6, ge=1, description="frames mode: query frames of the screening (refine > 0)")
         track: bool = Field(True, description="frames mode: the last answer, continued, is a candidate too")
-        confidence: Literal["uniqueness", "distance"] = Field(
-            "uniqueness", description="frames mode: 1 - best / second best far candidate (as SeqSLAM), or "
-            "1 - v / max_distance of the chosen pairs (eq. 3.14, the faithful mode's)"
+        confidence: Literal["auto", "uniqueness", "distance"] = Field(
+            "auto", description="frames mode: 1 - best / second best far candidate (as SeqSLAM), or "
+            "1 - v / max_distance of the chosen pairs (eq. 3.14, the faithful mode's); auto: uniqueness for "
+            "paired traversals, distance for a stream (whose queries mostly have no true match)"
         )
         evidence_iterations: int = Field(
             3, ge=1, description="frames mode: an answer's confidence is the mean over the last this many "
@@ -266,9 +269,9 @@ class HierarchicalSequence(LoopDetector):
         self._waiting: _FrameAnswer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
         self._sequence_distances = 0
-        uniqueness = c.mode == "frames" and c.confidence == "uniqueness"
+        self._confidence_kind: str | None = None if c.confidence == "auto" else c.confidence
         self._accept = c.accept_confidence if c.accept_confidence is not None else (
-            UNIQUENESS_ACCEPT if uniqueness else DISTANCE_ACCEPT)
+            UNIQUENESS_ACCEPT if c.mode == "frames" and c.confidence == "uniqueness" else DISTANCE_ACCEPT)
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         if not isinstance(stages.get("place_map"), HierarchicalPlaceMap):
@@ -415,7 +418,7 @@ class HierarchicalSequence(LoopDetector):
         ends = np.asarray([int(t.at(end)) for t, _ in trajectories])
         costs = np.asarray([t.cost for t, _ in trajectories])
         best = trajectories[0][0]
-        confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if c.confidence == "uniqueness" \
+        confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if self._kind(places) == "uniqueness" \
             else float(pm.similarity(best.cost))
         consistent = self._track is not None and abs(int(best.at(end)) - int(self._track[0].at(end))) <= c.alpha
         self._track = (best, end)
@@ -428,6 +431,19 @@ class HierarchicalSequence(LoopDetector):
         if not c.isolate:
             return self._frame_answers(record, "consistent" if consistent else "inconsistent", [best], record.confidence)
         return self._settle(record)
+
+    def _kind(self, places: list[int]) -> str:
+        """The frames mode's confidence, ``auto`` resolved at the first sequence: in a stream
+        most queries come before any revisit and have no true match, so only how similar
+        the answer is (eq. 3.14) can tell a revisit from a look-alike; uniqueness, which
+        ranks an answer against the other candidates, cannot (a repetitive street makes
+        true revisits look no more unique than look-alikes). Paired traversals: uniqueness."""
+        if self._confidence_kind is None:
+            stream = self._map is not None and self._map.places[places[-1]].traversal == "stream"
+            self._confidence_kind = "distance" if stream else "uniqueness"
+            if self.config.accept_confidence is None:
+                self._accept = DISTANCE_ACCEPT if stream else UNIQUENESS_ACCEPT
+        return self._confidence_kind
 
     def _settle(self, record: _FrameAnswer | None) -> list[Message]:
         """Answer the waiting sequence now that the next one (``record``; None: none will come)
