@@ -21,7 +21,7 @@ from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
 
 
 def _cache(query: np.ndarray, map_vectors: np.ndarray, keep: int = 100) -> PairDistances:
-    return PairDistances(lambda t, m: pairwise(query[t : t + 1], map_vectors[m], "l1")[0], keep)
+    return PairDistances(lambda t, m: np.abs(query[t] - map_vectors[m]).sum(axis=1), keep)
 
 
 # --- level 2, frame by frame ------------------------------------------------------------------

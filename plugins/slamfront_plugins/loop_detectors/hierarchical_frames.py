@@ -65,42 +65,66 @@ def speeds(vmin: float, vmax: float, length: int) -> np.ndarray:
 class PairDistances:
     """Distances between query positions and map-frame positions, each computed once.
 
-    :param compute: ``(t, m) -> (len(m),)`` distances between query position ``t`` and
-        the map-frame positions ``m``.
+    A table of ``keep`` rows, query position ``t`` in row ``t % keep``, one column per
+    map-frame position (grown as the map grows), NaN where not computed yet: a lookup of
+    any number of pairs is one fancy-indexing step, whatever the positions.
+
+    :param compute: ``(t, m) -> (n,)`` distances between the query positions ``t[i]``
+        and the map-frame positions ``m[i]`` (arrays of the same length); called once per
+        :meth:`get` with every pair not computed before, so its overhead is paid once.
     :param keep: query positions older than the newest minus ``keep`` are forgotten.
     """
 
-    def __init__(self, compute: Callable[[int, np.ndarray], np.ndarray], keep: int) -> None:
+    def __init__(self, compute: Callable[[np.ndarray, np.ndarray], np.ndarray], keep: int) -> None:
         self._compute = compute
         self._keep = keep
-        self._rows: dict[int, np.ndarray] = {}
+        self._table = np.full((keep, 0), np.nan, dtype=np.float32)
+        self._owner = np.full(keep, -1, dtype=np.int64)  # the query position each row holds
+        self._newest = -1
         self.computed = 0
         """Distances computed so far (each pair once)."""
 
     def get(self, t: np.ndarray, m: np.ndarray) -> np.ndarray:
         """(n,) float64 distances for the pairs ``(t[i], m[i])``; m must be >= 0."""
-        out = np.empty(len(t), dtype=np.float64)
-        for position in np.unique(t).tolist():
-            chosen = t == position
-            wanted = m[chosen]
-            row = self._row(position, int(wanted.max()) + 1)
-            missing = np.unique(wanted[np.isnan(row[wanted])])
-            if len(missing):
-                row[missing] = self._compute(position, missing)
-                self.computed += len(missing)
-            out[chosen] = row[wanted]
-        return out
+        t = np.asarray(t, dtype=np.int64)
+        m = np.asarray(m, dtype=np.int64)
+        if not len(t):
+            return np.empty(0, dtype=np.float64)
+        positions = np.unique(t)
+        if positions[-1] - positions[0] >= self._keep:  # one lookup spans more than the table
+            self._resize(int(positions[-1] - positions[0]) + 1)
+        width = int(m.max()) + 1
+        if width > self._table.shape[1]:
+            grown = np.full((self._keep, max(width, 2 * self._table.shape[1])), np.nan, dtype=np.float32)
+            grown[:, : self._table.shape[1]] = self._table
+            self._table = grown
+        rows = positions % self._keep
+        # a row is reused when it holds another position, or one older than the newest minus keep
+        stale = (self._owner[rows] != positions) | (positions <= self._newest - self._keep)
+        self._table[rows[stale]] = np.nan
+        self._owner[rows[stale]] = positions[stale]
+        self._newest = max(self._newest, int(positions[-1]))
+        slot = t % self._keep
+        values = self._table[slot, m]
+        missing = np.isnan(values)
+        if missing.any():
+            columns = self._table.shape[1]
+            keys = np.unique(t[missing] * columns + m[missing])  # each pair once
+            pair_t, pair_m = keys // columns, keys % columns
+            self._table[pair_t % self._keep, pair_m] = np.asarray(self._compute(pair_t, pair_m), dtype=np.float32)
+            self.computed += len(keys)
+            values = self._table[slot, m]
+        return values.astype(np.float64)
 
-    def _row(self, position: int, width: int) -> np.ndarray:
-        row = self._rows.get(position)
-        if row is None or len(row) < width:
-            grown = np.full(max(width, 2 * len(row) if row is not None else width), np.nan, dtype=np.float32)
-            if row is not None:
-                grown[: len(row)] = row
-            self._rows[position] = row = grown
-            for old in [p for p in self._rows if p <= position - self._keep]:
-                del self._rows[old]
-        return row
+    def _resize(self, keep: int) -> None:
+        """Room for ``keep`` positions, keeping the rows still valid."""
+        table = np.full((keep, self._table.shape[1]), np.nan, dtype=np.float32)
+        owner = np.full(keep, -1, dtype=np.int64)
+        for row, position in enumerate(self._owner.tolist()):
+            if position >= 0 and position > self._newest - self._keep:
+                table[position % keep] = self._table[row]
+                owner[position % keep] = position
+        self._table, self._owner, self._keep = table, owner, keep
 
 
 def best_trajectory(

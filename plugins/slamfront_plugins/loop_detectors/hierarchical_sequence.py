@@ -385,11 +385,11 @@ class HierarchicalSequence(LoopDetector):
 
     # --- frames mode: levels 2 and 3 --------------------------------------------------------
 
-    def _pair_distances(self, position: int, map_positions: np.ndarray) -> np.ndarray:
+    def _pair_distances(self, positions: np.ndarray, map_positions: np.ndarray) -> np.ndarray:
         pm = self._map
         assert pm is not None
-        query = pm.vectors([self._order[position]])
-        return rowwise(np.repeat(query, len(map_positions), axis=0), pm.vectors(pm.map_frames_at(map_positions)), pm.metric)  # type: ignore[arg-type]
+        frames = [self._order[p] for p in positions.tolist()]
+        return rowwise(pm.vectors(frames), pm.vectors(pm.map_frames_at(map_positions)), pm.metric)  # type: ignore[arg-type]
 
     def _frame_iteration(
         self, number: int, places: list[int], frames: np.ndarray, hits: np.ndarray, usable: int
