@@ -25,13 +25,20 @@ from slamfront.recipe import recipes_dir
 
 
 class _RangeHandler(http.server.BaseHTTPRequestHandler):
-    """Serves ``files`` with HTTP range support; ``cut`` makes the first full response stop early."""
+    """Serves ``files`` with HTTP range support; ``cut`` makes the first full response stop
+    early; ``after[a] = b`` holds the answer to ``a`` until ``b`` has been asked for (two
+    downloads then surely run together, whatever the machine's load)."""
 
     files: dict[str, bytes] = {}
     cut: dict[str, int] = {}
     log: list[str] = []
+    after: dict[str, str] = {}
+    asked: dict[str, threading.Event] = {}
 
     def do_GET(self) -> None:  # noqa: N802 (http.server's naming)
+        self.asked.setdefault(self.path, threading.Event()).set()
+        if self.path in self.after:
+            self.asked.setdefault(self.after[self.path], threading.Event()).wait(timeout=30)
         body = self.files.get(self.path)
         if body is None:
             self.send_error(404)
@@ -63,6 +70,7 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
 @pytest.fixture
 def server() -> Iterator[str]:
     _RangeHandler.files, _RangeHandler.cut, _RangeHandler.log = {}, {}, []
+    _RangeHandler.after, _RangeHandler.asked = {}, {}
     httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _RangeHandler)
     thread = threading.Thread(target=httpd.serve_forever, daemon=True)
     thread.start()
@@ -225,6 +233,9 @@ def test_fetch_from_a_mirror_resumes_and_refuses_a_corrupt_file(server: str, tmp
     served_second = served[second]
     _RangeHandler.files[second] = served_second[:-1] + bytes([served_second[-1] ^ 0xFF])  # one byte altered
     _RangeHandler.cut[third] = 100_000  # the connection drops after 100 kB
+    # the corrupt file's answer waits for the third's request: the first failure stops the
+    # fetch only once the third is under way (otherwise it may be cancelled before it starts)
+    _RangeHandler.after[second] = third
     with pytest.raises(DataError) as failure:
         fetch_dataset(dataset, tmp_path, mirror=f"{server}/mirror", progress=False)
     assert "is not the pinned" in str(failure.value) or "ended early" in str(failure.value)
