@@ -320,7 +320,7 @@ class HierarchicalSequence(LoopDetector):
         self._query_frames += 1
         self._position[frame] = len(self._order)
         self._order.append(frame)
-        self._informative.append(bool(np.abs(pm.vectors([frame])).sum() > 0))
+        self._informative.append(bool(pm.informative([frame])[0]))
         out: list[Message] = []
         if new_place:
             self._query_places += 1
@@ -615,7 +615,7 @@ class HierarchicalSequence(LoopDetector):
             reason = "inconsistent with both neighbouring iterations and no earlier sequence to rebuild from"
             return [SequenceDecision(**decision, reason=reason), *self._no_answer(iteration.frames, reason)]
         query = pm.vectors(iteration.frames)
-        informative = np.abs(query).sum(axis=1) > 0
+        informative = pm.informative(iteration.frames)
         offsets = pm.place_offsets()
         match = match_frames(
             query, informative, dispatch.sequence, offsets,

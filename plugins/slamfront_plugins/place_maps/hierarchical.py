@@ -195,7 +195,7 @@ class HierarchicalPlaceMap(PlaceMap):
         self.threshold: float | None = None if given == "auto" else float(given)
         """nu in use; None while the automatic one is still being chosen."""
         self._held: list[tuple[int, str]] = []  # (frame, traversal) waiting for nu, in order
-        self._informative: list[bool] = []  # per frame: not featureless (its descriptor is not all zeros)
+        self._informative = GrowingRows(1, dtype=bool)  # per frame: not featureless (its descriptor is not all zeros)
         self._n_frames = 0
         self._distance_calls = 0  # level-1 search distances (brute force, or the VP-tree's count)
         self._calibrated_on = 0  # frames the automatic nu was chosen from
@@ -224,7 +224,7 @@ class HierarchicalPlaceMap(PlaceMap):
             if self.config.search == "vptree":
                 self._tree = VPTree(len(features.vector), self._metric, leaf_size=self.config.leaf_size)  # type: ignore[arg-type]
         self._vectors.append(features.vector)
-        self._informative.append(bool(np.any(features.vector)))
+        self._informative.append(np.array([np.any(features.vector)]))
         if self.threshold is not None:
             first = [self._given_threshold(frame.index)] if frame.index == 0 else []
             return [*first, self._assign(frame.index, frame.traversal)]
@@ -363,7 +363,7 @@ class HierarchicalPlaceMap(PlaceMap):
 
     def informative(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         """(n,) bool: which frames have a descriptor that is not all zeros (not featureless)."""
-        return np.asarray(self._informative, dtype=bool)[np.asarray(frames, dtype=np.int64)]
+        return self._informative.view[np.asarray(frames, dtype=np.int64), 0]
 
     def map_frames_at(self, positions: np.ndarray) -> np.ndarray:
         """Frame indices at any map-frame positions (an array of them)."""
