@@ -516,13 +516,10 @@ class HierarchicalSequence(LoopDetector):
                     placements.append(Trajectory(trajectory.cost, trajectory.anchor_query,
                                                  trajectory.anchor_map + shift, trajectory.speed, trajectory.rows))
         costs = []
-        enough = max(1, (len(rows) + 1) // 2)
-        for placement in placements:
-            paired = placement.at(rows)
-            usable = (paired >= 0) & (paired < n_map)
-            usable[usable] = map_informative[paired[usable]]
-            costs.append(float(self._pairs.get(rows[usable], paired[usable]).mean()) if usable.sum() >= enough
-                         else np.inf)
+        for placement in placements:  # each scored by level 2's rule: the line alone, no slack
+            scored = best_trajectory(self._pairs, rows, placement.anchor_query, placement.anchor_map, 0,
+                                     np.asarray([placement.speed]), n_map, map_informative)
+            costs.append(np.inf if scored is None else scored.cost)
         if not np.isfinite(min(costs)):
             return chosen[0]
         return placements[int(np.argmin(costs))]
