@@ -152,9 +152,6 @@ class LoopClosureEvaluation(Evaluation):
             "recall_verified": tp / max(positives, 1),
         }
 
-    def _score(self, truth: LoopGroundTruth, ks: list[int], options: EvalOptions) -> _Scores:
-        return score_loops(self._results, truth, ks, options)
-
     def finish(self, context: EvaluationContext) -> EvaluationReport | None:
         truth = context.source.loop_ground_truth()
         if truth is None:
@@ -162,7 +159,7 @@ class LoopClosureEvaluation(Evaluation):
         zeta = getattr(context.source.config, "tolerance", None)
         if zeta is not None and context.source.loop_ground_truth_at(zeta) is None:
             zeta = None  # the source's truth is not a band of frames (a stream's revisit radius)
-        main = self._score(truth, context.options.recall_at_k, context.options)
+        main = score_loops(self._results, truth, context.options.recall_at_k, context.options)
         write_pr_curve(main.curve, context.out_dir / PR_CURVE_FILE)
         metrics = dict(main.metrics)
         label = context.plugin_names.get("loop_detector", "detector")
@@ -173,7 +170,7 @@ class LoopClosureEvaluation(Evaluation):
             if other_truth is None:
                 notes.append(f"The source cannot be scored at tolerance {tolerance} (no tolerance to change).")
                 continue
-            other = self._score(other_truth, context.options.recall_at_k, context.options)
+            other = score_loops(self._results, other_truth, context.options.recall_at_k, context.options)
             for key, value in other.metrics.items():
                 if key in _PER_TOLERANCE or (key.startswith("recall_at_") and key[len("recall_at_"):].isdigit()):
                     metrics[f"{key}_zeta{tolerance}"] = value
