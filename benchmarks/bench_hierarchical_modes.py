@@ -44,6 +44,8 @@ DEVIATIONS = [  # label, overrides of nordland_hsl (the frame-level mode)
     ("confidence of its own iteration only (evidence_iterations: 1)", ["loop_detector.params.evidence_iterations=1"]),
     ("no level-3 realignment of Q", ["loop_detector.params.realign=false"]),
     ("no waiting / isolation (every answer at once)", ["loop_detector.params.isolate=false"]),
+    ("no line check (uniqueness against other candidates only)", ["loop_detector.params.line_check=false"]),
+    ("no cut where the route leaves the line", ["loop_detector.params.leave_line=false"]),
     ("Gaussian 5x5 as the thesis (not scaled to the image)", ["descriptor.params.gaussian_kernel=5"]),
 ]
 

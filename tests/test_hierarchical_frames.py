@@ -12,6 +12,7 @@ from slamfront_plugins.loop_detectors.hierarchical_frames import (
     PairDistances,
     Trajectory,
     best_trajectory,
+    line_uniqueness,
     speeds,
     uniqueness,
 )
@@ -78,6 +79,22 @@ def test_uniqueness_is_one_minus_best_over_the_best_far_candidate() -> None:
     ends = np.array([100, 104, 400, 900])
     assert uniqueness(costs, ends, 0, window=10) == pytest.approx(1 - 0.3 / 0.5)  # 104 is the same place
     assert uniqueness(costs[:2], ends[:2], 0, window=10) == 0.0  # nothing far to compare with
+
+
+def test_line_uniqueness_is_near_zero_where_the_frames_all_look_alike() -> None:
+    # query position t shows map frame t; map frames 40..79 are one look-alike stretch
+    map_vectors = route_descriptors(120, 1, seed=6)
+    map_vectors[40:80] = noisy(np.repeat(map_vectors[40:41], 40, axis=0), 0.01, seed=7)
+    query = noisy(map_vectors, 0.05)
+    cache = _cache(query, map_vectors)
+    line = Trajectory(cost=0.0, anchor_query=0, anchor_map=0, speed=1.0, rows=0)
+    distinct = line_uniqueness(cache, np.arange(5, 35), line, 2, 10, 120)
+    assert distinct > 0.5  # moved by 3..10 frames the line pairs unrelated frames
+    alike = line_uniqueness(cache, np.arange(45, 75), line, 2, 10, 120)
+    assert alike < 0.05  # moved inside the stretch it fits as well: which is right is chance
+    moved = Trajectory(cost=0.0, anchor_query=0, anchor_map=6, speed=1.0, rows=0)  # 6 frames off, outside it
+    assert line_uniqueness(cache, np.arange(5, 35), moved, 2, 10, 120) == 0.0  # a moved line fits better
+    assert line_uniqueness(cache, np.arange(5, 35), line, 2, 2, 120) == 0.0  # nothing to compare with
 
 
 # --- the detector in frames mode ----------------------------------------------------------------
@@ -147,6 +164,28 @@ def test_an_answer_consistent_with_neither_neighbour_is_isolated_with_no_confide
     assert detector.statistics()["n_isolated"] == len(isolated)
     back = [r for k, r in results.items() if k >= 52 + 20 and r.match >= 0]
     assert back and all(abs(r.match - (k - 40 - 12 + 52)) <= 1 for k, r in results.items() if k >= 72 and r.match >= 0)
+
+
+def test_frames_past_a_jump_in_the_route_are_not_answered_along_the_old_line() -> None:
+    # the query drives map frames 0..99, then goes on at map frame 160 (the route skips a
+    # stretch the map holds): the sequence that ends just past the jump is still consistent
+    # with the line before it, and the next sequence goes on elsewhere
+    reference = route_descriptors(120, FRAMES_PER_PLACE, seed=2)
+    truth = np.concatenate([np.arange(0, 100), np.arange(160, 240)])
+    query = noisy(reference[truth], 0.1, seed=4)
+
+    def answers(**switches: bool) -> tuple[list[float], list[float], HierarchicalSequence]:
+        results, _, detector = _run(reference, query, sequence_frames=20, **switches)
+        right = [r.confidence for k, r in results.items() if r.match >= 0 and abs(r.match - truth[k]) <= 1]
+        wrong = [r.confidence for k, r in results.items() if r.match >= 0 and abs(r.match - truth[k]) > 1]
+        return right, wrong, detector
+
+    right, wrong, detector = answers()
+    assert len(right) >= 160 and not wrong
+    assert detector.statistics()["n_left_the_line"] >= 8  # the frames past the jump, unanswered
+    # without both checks the old line answers them, more confident than true matches
+    right, wrong, _ = answers(leave_line=False, line_check=False)
+    assert len(wrong) >= 8 and max(wrong) > min(right)
 
 
 # --- level 3: realignment of Q ------------------------------------------------------------------

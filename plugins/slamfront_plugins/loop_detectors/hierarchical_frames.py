@@ -127,6 +127,43 @@ class PairDistances:
         self._table, self._owner, self._keep = table, owner, keep
 
 
+def trajectory_costs(
+    distances: PairDistances,
+    rows: np.ndarray,
+    anchor_query: int,
+    anchor_map: int,
+    shifts: np.ndarray,
+    velocities: np.ndarray,
+    n_map: int,
+    map_informative: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean distance of every line through one anchor, in one lookup.
+
+    :param rows: (R,) query positions compared (informative frames of the window).
+    :param shifts: (S,) moves of the anchor's map position tried.
+    :param velocities: (V,) speeds tried.
+    :param n_map: map-frame positions ``0..n_map-1`` may be paired.
+    :param map_informative: (>= n_map,) bool per map-frame position, False for featureless
+        frames, which are left out of the pairs (None: all informative).
+    :returns: (S, V) costs, inf where fewer than half of the rows stay inside the map on
+        an informative frame; (S, V) the number of rows each cost is over.
+    """
+    steps = np.floor((rows[None, :] - anchor_query) * velocities[:, None] + 0.5).astype(np.int64)  # (V, R)
+    positions = anchor_map + shifts[:, None, None] + steps[None, :, :]  # (S, V, R)
+    inside = (positions >= 0) & (positions < n_map)
+    if map_informative is not None:
+        inside[inside] = map_informative[positions[inside]]
+    counts = inside.sum(axis=2)
+    enough = counts >= max(1, (len(rows) + 1) // 2)
+    costs = np.full(counts.shape, np.inf)
+    if enough.any():
+        values = np.zeros(positions.shape, dtype=np.float64)
+        pairs = inside & enough[:, :, None]
+        values[pairs] = distances.get(np.broadcast_to(rows, positions.shape)[pairs], positions[pairs])
+        costs[enough] = values.sum(axis=2)[enough] / counts[enough]
+    return costs, counts
+
+
 def best_trajectory(
     distances: PairDistances,
     rows: np.ndarray,
@@ -137,33 +174,18 @@ def best_trajectory(
     n_map: int,
     map_informative: np.ndarray | None = None,
 ) -> Trajectory | None:
-    """The lowest-cost trajectory through one anchor.
+    """The lowest-cost trajectory through one anchor, shifts ``-slack..slack`` of its map
+    position and the speeds ``velocities`` tried (:func:`trajectory_costs`).
 
-    :param rows: (R,) query positions compared (informative frames of the window).
-    :param slack: shifts ``-slack..slack`` of the anchor's map position are tried.
-    :param velocities: (V,) speeds tried.
-    :param n_map: map-frame positions ``0..n_map-1`` may be paired.
-    :param map_informative: (>= n_map,) bool per map-frame position, False for featureless
-        frames, which are left out of the pairs (None: all informative).
     :returns: None when no trajectory keeps at least half of the rows inside the map.
     """
     if len(rows) == 0:
         return None
     shifts = np.arange(-slack, slack + 1, dtype=np.int64)
-    steps = np.floor((rows[None, :] - anchor_query) * velocities[:, None] + 0.5).astype(np.int64)  # (V, R)
-    positions = anchor_map + shifts[:, None, None] + steps[None, :, :]  # (S, V, R)
-    inside = (positions >= 0) & (positions < n_map)
-    if map_informative is not None:
-        inside[inside] = map_informative[positions[inside]]
-    counts = inside.sum(axis=2)
-    enough = counts >= max(1, (len(rows) + 1) // 2)
-    if not enough.any():
+    costs, counts = trajectory_costs(distances, rows, anchor_query, anchor_map, shifts, velocities, n_map,
+                                     map_informative)
+    if not np.isfinite(costs).any():
         return None
-    values = np.zeros(positions.shape, dtype=np.float64)
-    pairs = inside & enough[:, :, None]
-    values[pairs] = distances.get(np.broadcast_to(rows, positions.shape)[pairs], positions[pairs])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        costs = np.where(enough, values.sum(axis=2) / counts, np.inf)
     s, v = np.unravel_index(int(np.argmin(costs)), costs.shape)
     return Trajectory(
         cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
@@ -182,3 +204,34 @@ def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> f
     if second <= 0:
         return 0.0
     return float(np.clip(1.0 - costs[best] / second, 0.0, 1.0))
+
+
+def line_uniqueness(
+    distances: PairDistances,
+    rows: np.ndarray,
+    line: Trajectory,
+    slack: int,
+    window: int,
+    n_map: int,
+    map_informative: np.ndarray | None = None,
+) -> float:
+    """How much better ``line`` fits the query positions ``rows`` than the same line moved
+    along the map by more than ``slack`` and at most ``window`` map frames:
+    ``1 - cost / second``, ``second`` the lowest cost of the moved lines (each scored as
+    :func:`best_trajectory` scores one line: no slack, at the line's speed).
+
+    :func:`uniqueness` cannot see this: to it a candidate ending within ``window`` frames
+    is the same answer. Where the route runs through frames that all look alike, the
+    moved lines cost as much as the line itself and which of them is right is chance:
+    near 0 then. 0 also when the line or no moved line fits in the map (nothing to tell
+    the answer apart from)."""
+    if len(rows) == 0:
+        return 0.0
+    moves = np.arange(slack + 1, window + 1, dtype=np.int64)
+    shifts = np.concatenate([[0], -moves, moves])
+    costs, _ = trajectory_costs(distances, rows, line.anchor_query, line.anchor_map, shifts,
+                                np.asarray([line.speed]), n_map, map_informative)
+    own, second = float(costs[0, 0]), float(costs[1:, 0].min(initial=np.inf))
+    if not np.isfinite(own) or not np.isfinite(second) or second <= 0:
+        return 0.0
+    return float(np.clip(1.0 - own / second, 0.0, 1.0))
