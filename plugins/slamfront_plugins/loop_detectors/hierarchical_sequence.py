@@ -123,7 +123,7 @@ class SequenceDecision(Message):
     speed: float = float("nan")
     """Frames: the speed of the chosen trajectory (map frames per query frame)."""
     line_uniqueness: float = float("nan")
-    """Frames, paired traversals: how much better the answered line fits than itself moved
+    """Frames, uniqueness confidence: how much better the answered line fits than itself moved
     by ``anchor_slack + 1 .. uniqueness_window`` frames (the confidence is at most this)."""
     left_line_at: int = -1
     """Frames: the first query frame answered no more because the route left the line there (-1: none)."""
@@ -250,7 +250,7 @@ class HierarchicalSequence(LoopDetector):
             "consistent with neither, it keeps confidence 0 (False: every answer at once, with its confidence)"
         )
         line_check: bool = Field(
-            True, description="frames mode, paired traversals: the confidence is at most the answered line's "
+            True, description="frames mode, uniqueness confidence (paired traversals): the confidence is at most the answered line's "
             "uniqueness against the same line moved by anchor_slack + 1 .. uniqueness_window map frames, over Q "
             "and the window that chose the line (a stretch of look-alike frames cannot say which is right)"
         )
