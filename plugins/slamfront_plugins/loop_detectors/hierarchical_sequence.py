@@ -61,7 +61,7 @@ or inconsistent:
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -423,7 +423,7 @@ class HierarchicalSequence(LoopDetector):
         end = int(positions[-1])
         start = max(0, end - max(c.sequence_frames, len(frames)) + 1)
         blind = self._blind_stretch(start, end)
-        rows = np.asarray([t for t in range(max(start, blind + 1), end + 1) if self._informative[t]], dtype=np.int64)
+        rows = self._informative_rows(range(max(start, blind + 1), end + 1))
         anchor = self._position[pm.places[places[-1]].frames[0]]
         anchors = [(anchor, pm.map_frame_range(int(h), int(h))[0], int(h)) for h in hits]
         if self._track is not None and c.track:
@@ -484,8 +484,8 @@ class HierarchicalSequence(LoopDetector):
             # to vmax - vmin): Q's own trajectory is tried too when its own window holds all of
             # Q (not when a featureless stretch cut it short)
             c = self.config
-            seen = [int(t) for t in waiting.positions if self._informative[int(t)]]
-            if seen and (record.window_start - seen[0]) * (c.vmax - c.vmin) > c.anchor_slack \
+            seen = self._informative_rows(waiting.positions)
+            if len(seen) and (record.window_start - seen[0]) * (c.vmax - c.vmin) > c.anchor_slack \
                     and waiting.window_start <= seen[0]:
                 along.append(own)
             span = (min(record.window_start, first), int(record.positions[-1]))
@@ -507,7 +507,7 @@ class HierarchicalSequence(LoopDetector):
         Q's line is continued from the sequences before it; a jump in the route (the map
         holds the next stretch elsewhere) shows first in Q's newest frames, which the line
         still answers because most of its window is before the jump."""
-        rows = np.asarray([t for t in waiting.positions.tolist() if self._informative[t]], dtype=np.int64)
+        rows = self._informative_rows(waiting.positions)
         if not len(rows):
             return None
         fits = []
@@ -527,6 +527,12 @@ class HierarchicalSequence(LoopDetector):
         total = np.concatenate([[0.0], np.cumsum(on_own)]) + np.concatenate([np.cumsum(on_next[::-1])[::-1], [0.0]])
         k = len(total) - 1 - int(np.argmin(total[::-1]))
         return None if k >= len(rows) else int(rows[k])
+
+    def _informative_rows(self, positions: Iterable[int] | np.ndarray) -> np.ndarray:
+        """(n,) int64: the query positions among ``positions`` whose frame is not featureless
+        (the rows a sequence is compared over), in the given order."""
+        return np.asarray([t for t in np.asarray(positions, dtype=np.int64).tolist() if self._informative[t]],
+                          dtype=np.int64)
 
     def _blind_stretch(self, start: int, end: int) -> int:
         """The last query position of the latest run of more than alpha featureless frames in
@@ -559,7 +565,7 @@ class HierarchicalSequence(LoopDetector):
         elsewhere) as long as at least half of Q's frames stay inside, as in level 2; it is
         scored on those. Ties: the first tried."""
         slack = self.config.anchor_slack
-        rows = np.asarray([t for t in positions.tolist() if self._informative[t]], dtype=np.int64)
+        rows = self._informative_rows(positions)
         if not len(rows):
             return chosen[0]
         middle = int(rows[len(rows) // 2])
@@ -624,7 +630,7 @@ class HierarchicalSequence(LoopDetector):
         local = float("nan")
         if c.line_check and self._confidence_kind == "uniqueness" and confidence > 0:
             end = span[1] if leaves is None else min(span[1], leaves - 1)
-            rows = np.asarray([t for t in range(span[0], end + 1) if self._informative[t]], dtype=np.int64)
+            rows = self._informative_rows(range(span[0], end + 1))
             local = line_uniqueness(self._pairs, rows, placement, c.anchor_slack, c.uniqueness_window,
                                     record.n_map, record.map_informative)
             confidence = min(confidence, local)
