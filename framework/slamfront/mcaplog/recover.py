@@ -10,16 +10,17 @@ lost, since the run's own last line is gone with the end of the file.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from slamfront.errors import LogError, SlamfrontError
 from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.reader import check_magic, describe_damage
+from slamfront.mcaplog.reader import LoggedMessage, check_magic, describe_damage
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.topics import LOG_TOPIC
+from slamfront.mcaplog.validate import READABLE_ENCODINGS, OrderCheck, numbered_log
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.outputs import make_folder, refuse_overwrite
 
@@ -37,6 +38,10 @@ class Recovery:
     was_complete: bool
     salvaged_messages: int
     problem: str | None
+    changes: list[str] = field(default_factory=list)
+    """What shows the source was changed after it was written, although its records read
+    (duplicated, reordered or dropped messages; unreadable encodings): the copy keeps
+    the messages as they are, renumbered, so these are said here and in its last ``/log`` line."""
 
 
 def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_size: int = 1 << 20) -> Recovery:
@@ -73,6 +78,7 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
     counts = {"messages": 0, "metadata": 0, "attachments": 0}
     topics: set[str] = set()
     last_time = 0
+    order, changes = OrderCheck(numbered_log(source)), []
     with open(source, "rb") as stream:
         check_magic(source, stream)
         scanner = RecordScanner(stream, source.stat().st_size)
@@ -87,6 +93,12 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
                 elif isinstance(record, Message):
                     channel = channels[record.channel_id]
                     schema = schemas.get(channel.schema_id)
+                    change = order.problem(LoggedMessage(
+                        channel.topic, schema.name if schema else "", channel.message_encoding, record.log_time,
+                        record.sequence, bytes(record.data),
+                    ))
+                    if change:
+                        changes.append(change)
                     log.write_raw(
                         channel.topic,
                         schema.name if schema else "",
@@ -109,22 +121,29 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
                     )
                     counts["attachments"] += 1
             state = scanner.state
-            complete = state.complete and not state.problems and not state.orphan_messages
-            problem = None if complete else describe_damage(state, last_time or None)
+            damaged = not state.complete or state.problems or state.orphan_messages
+            if damaged:  # records lost to damage leave gaps in the numbering: the damage says it
+                changes = [c for c in changes if " missing" not in c]
+            changes += [f"{c.topic}: message encoding {c.message_encoding!r} is not one slamfront reads"
+                        for c in channels.values() if c.message_encoding not in READABLE_ENCODINGS]
+            complete = not damaged and not changes
+            problem = describe_damage(state, last_time or None) if damaged else None
             if not complete:
                 ended = "" if state.data_ended else "; how the run ended was not recorded"
+                lost = f"lost: {problem}{ended}" if problem else "nothing lost"
+                changed = f"; changed after it was written: {changes[0]} ({len(changes)} such)" if changes else ""
                 text = (
                     f"log recovered by slamfront recover from {source.name}: {counts['messages']} messages kept; "
-                    f"lost: {problem}{ended}"
+                    f"{lost}{changed}"
                 )
                 log.add_metadata(
                     "recovery",
-                    {"source": str(source), "problem": problem, "messages_kept": counts["messages"],
-                     "salvaged_messages": state.salvaged_messages},
+                    {"source": str(source), "problem": problem or "", "messages_kept": counts["messages"],
+                     "salvaged_messages": state.salvaged_messages, "changes": str(len(changes))},
                 )
                 log.write_foxglove(LOG_TOPIC, foxglove.log_line(text, last_time, "warning"), last_time)
     return Recovery(
         source=source, target=target, messages=counts["messages"], topics=len(topics), metadata=counts["metadata"],
         attachments=counts["attachments"], was_complete=complete, salvaged_messages=state.salvaged_messages,
-        problem=problem,
+        problem=problem, changes=changes,
     )

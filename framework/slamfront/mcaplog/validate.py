@@ -7,6 +7,12 @@ message is decoded: protobuf messages must parse, JSON messages must decode to t
 class and encode back to the same bytes (bit-exact round trip). Foxglove messages'
 ``timestamp`` must equal their log time and their ``frame_id`` must not be empty, so
 panels line them up in time and the 3-D panel can place them.
+
+Two more checks catch a log that was changed after it was written, even when every
+CRC was recomputed: a message encoding slamfront cannot read (:func:`check_encodings`),
+and messages duplicated, reordered or dropped (:class:`OrderCheck`: slamfront's writer
+numbers each channel's messages 0, 1, 2, ..., and every frame has one ``/frames``
+message, in order). ``replay`` refuses such a log with the same one-line message.
 """
 
 from __future__ import annotations
@@ -22,7 +28,8 @@ import foxglove_schemas_protobuf
 from google.protobuf.message import DecodeError
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import read_messages, summarize
+from slamfront.mcaplog.reader import LoggedMessage, TopicSummary, read_messages, summarize, writer_library
+from slamfront.mcaplog.topics import FRAMES_TOPIC
 from slamfront.messages import message_class
 from slamfront.text import shorten
 
@@ -37,6 +44,78 @@ def foxglove_message_types() -> dict[str, Any]:
             for name, descriptor in loaded.DESCRIPTOR.message_types_by_name.items():
                 types[descriptor.full_name] = getattr(loaded, name)
     return types
+
+
+READABLE_ENCODINGS = ("json", "protobuf")
+"""Message encodings slamfront decodes; a channel in any other is named, never skipped."""
+
+
+def encoding_problem(topic: TopicSummary) -> str | None:
+    """Why ``topic``'s messages cannot be read (an unknown message encoding), or None."""
+    if topic.message_encoding in READABLE_ENCODINGS:
+        return None
+    return (
+        f"{topic.topic}: message encoding {topic.message_encoding!r} is not one slamfront reads "
+        f"({' or '.join(READABLE_ENCODINGS)}); its {topic.count} messages cannot be decoded"
+    )
+
+
+def check_encodings(path: Path, topics: list[TopicSummary]) -> None:
+    """:raises LogError: a topic of ``path`` has a message encoding slamfront cannot read."""
+    for topic in topics:
+        problem = encoding_problem(topic)
+        if problem:
+            raise LogError(f"{path}: {problem}")
+
+
+class OrderCheck:
+    """Messages of one log in the order they are read: on each channel of a log slamfront
+    wrote, sequence numbers 0, 1, 2, ... (a duplicated, reordered or lost record breaks
+    the count), and one ``/frames`` message per frame, frame indices increasing.
+
+    :param numbered: check sequence numbers (a slamfront log: :func:`numbered_log`).
+    :param gaps: accept missing sequence numbers (a damaged log read with ``--salvage``,
+        whose damage is reported on its own).
+    """
+
+    def __init__(self, numbered: bool, gaps: bool = False) -> None:
+        self._numbered = numbered
+        self._gaps = gaps
+        self._next: dict[str, int] = {}
+        self._last_frame: int | None = None
+
+    def problem(self, message: LoggedMessage) -> str | None:
+        """What is wrong with ``message`` coming next, or None."""
+        where = f"{message.topic} message at {message.log_time_ns} ns"
+        if self._numbered:
+            expected = self._next.get(message.topic, 0)
+            self._next[message.topic] = max(expected, message.sequence + 1)
+            if message.sequence < expected:
+                return f"{where}: sequence number {message.sequence} comes again or out of order (after {expected - 1}): a duplicated or reordered message"
+            if message.sequence > expected and not self._gaps:
+                lost = message.sequence - expected
+                return f"{where}: sequence number {message.sequence} after {expected - 1}: {lost} message{'s' * (lost > 1)} missing"
+        if message.topic == FRAMES_TOPIC:
+            try:
+                frame = int(message.decoded.frame)
+            except (LogError, AttributeError, TypeError, ValueError):
+                return None  # a message that does not decode is reported as such
+            last, self._last_frame = self._last_frame, frame if self._last_frame is None else max(frame, self._last_frame)
+            if last is not None and frame <= last:
+                kind = "a duplicated frame message" if frame == last else "frame messages out of order"
+                return f"{where}: frame {frame} after frame {last} ({kind})"
+        return None
+
+    def check(self, path: Path, message: LoggedMessage) -> None:
+        """:raises LogError: naming ``path`` and what is wrong with ``message`` coming next."""
+        problem = self.problem(message)
+        if problem:
+            raise LogError(f"{path}: {problem}; the log was changed after it was written (`slamfront inspect --validate` lists every problem)")
+
+
+def numbered_log(path: Path) -> bool:
+    """``path`` was written by slamfront, whose writers number every channel's messages."""
+    return writer_library(path).startswith("slamfront")
 
 
 @dataclass
@@ -65,7 +144,10 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
     for topic in summary.topics:
         result.n_topics += 1
         kind = (topic.schema_encoding, topic.message_encoding)
-        if kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:
+        unreadable = encoding_problem(topic)
+        if unreadable:
+            result.problems.append(unreadable)
+        elif kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:
             decoders[topic.topic] = foxglove[topic.schema_name]
         elif kind == ("jsonschema", "json"):
             try:
@@ -77,11 +159,17 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
                 f"{topic.topic}: schema {topic.schema_name!r} ({topic.schema_encoding}/{topic.message_encoding}) "
                 "is neither a Foxglove schema nor a registered slamfront one"
             )
+    order = OrderCheck(numbered_log(path))
     try:
         for message in read_messages(path):
             result.n_messages += 1
             decoder = decoders.get(message.topic)
-            if decoder is None or len(result.problems) >= max_problems:
+            if len(result.problems) >= max_problems:
+                continue
+            problem = order.problem(message)
+            if problem:
+                result.problems.append(problem)
+            if decoder is None:
                 continue
             problem = _check(message, decoder)
             if problem:
