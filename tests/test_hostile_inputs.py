@@ -26,7 +26,7 @@ import time
 import traceback
 import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -490,12 +490,19 @@ def build_cases(tmp: Path, log: Path) -> dict[str, Case]:  # noqa: PLR0915 (one 
         ("frames_written_three_times", crafted_logs.repeated("/frames", 3), ("/frames", "frame 0 after frame 0")),
         ("frames_out_of_order", crafted_logs.swapped("/frames", 2), ("/frames", "frame 2 after frame 3")),
         ("a_frame_message_dropped", crafted_logs.dropped("/frames", 3), ("/frames", "1 message missing")),
-        ("a_message_duplicated", crafted_logs.repeated("/frames", 2, renumber=False), ("/frames", "comes again")),
+        ("a_message_duplicated", crafted_logs.repeated("/frames", 2, renumber=False),
+         ("/frames", "a duplicated or reordered message")),
+        ("a_descriptor_relabelled", lambda m: [replace(e, schema_name="slamfront.FrameInfo")
+                                               if e.topic.startswith("/descriptor/features") else e for e in m],
+         ("/descriptor/features", "slamfront.FrameInfo")),
     ):
         crafted = crafted_logs.craft(log, tmp / f"crafted_{name}.mcap", change)
         cases[f"crafted_log_{name}_validate"] = Case(["inspect", crafted, "--validate"], needles, inputs=(crafted,))
         cases[f"crafted_log_{name}_replay"] = Case(["replay", crafted, "-o", tmp / f"rcl_{name}", "-q"], needles,
-                                                   inputs=(crafted,))
+                                                   inputs=(crafted,), absent=(tmp / f"rcl_{name}",))
+        cases[f"crafted_log_{name}_recover"] = Case(["recover", crafted, "-o", tmp / f"rcl_{name}.mcap"],
+                                                    ("changed: ", needles[0]), code=0, inputs=(crafted,),
+                                                    forbidden=("complete and undamaged",))
     unchanged = crafted_logs.craft(log, tmp / "crafted_unchanged.mcap", lambda messages: messages)
     cases["crafted_log_unchanged_validate"] = Case(["inspect", unchanged, "--validate"], ("valid:",), code=0)
 
@@ -573,7 +580,7 @@ CASE_NAMES = [
     "deeply_nested_json_validate", "binary_recipe_attachment",
     *(f"crafted_log_{name}_{command}" for name in (
         "cbor_encoding", "frames_written_three_times", "frames_out_of_order", "a_frame_message_dropped",
-        "a_message_duplicated") for command in ("validate", "replay")),
+        "a_message_duplicated", "a_descriptor_relabelled") for command in ("validate", "replay", "recover")),
     "crafted_log_unchanged_validate", "eval_traj_repeated_timestamps", "eval_traj_repeated_timestamps_keep_first",
     "eval_traj_decreasing_timestamps", "max_frames_minus_one", "max_frames_zero_in_a_sweep", "inspect_a_fifo",
     "replay_a_fifo",

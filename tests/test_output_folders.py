@@ -216,3 +216,17 @@ def test_the_lock_and_the_manifest_are_not_outputs(tmp_path: Path) -> None:
         folder.close()
     files = json.loads((tmp_path / "out" / MANIFEST).read_text())["files"]
     assert sorted(files) == ["run.mcap"] and files["run.mcap"]["size"] == 1
+
+
+def test_the_manifest_vouches_for_every_file_the_run_wrote_as_it_is(tmp_path: Path, recipe: Path, cli) -> None:
+    out = tmp_path / "out"
+    (tmp_path / "out").mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, _, err = cli("run", recipe, "-o", out, "-q")
+    assert code == 0, err
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert manifest["complete"] is True
+    on_disk = {p.name for p in out.iterdir()} - {MANIFEST, LOCK_FILE, "notes.txt"}
+    assert set(manifest["files"]) == on_disk and {"run.mcap", "metrics.json", "report.md"} <= on_disk
+    for name, entry in manifest["files"].items():  # the log's hash is its writer's, never read back
+        assert entry == {"size": (out / name).stat().st_size, "sha256": _digest(out / name)}, name

@@ -269,7 +269,7 @@ def _identity(info: os.stat_result) -> tuple[int, int, int, int]:
     return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns
 
 
-def _refuse_links(folder: Path) -> None:
+def refuse_links(folder: Path) -> None:
     """A symbolic link in the folder that a write could follow (to a file, or dangling) stops the run."""
     with contextlib.suppress(OSError):
         for entry in sorted(os.scandir(folder), key=lambda e: e.name):
@@ -346,9 +346,15 @@ class RunFolder:
         """Write the manifest: every file this run wrote so far, with its size and SHA-256."""
         files: dict[str, dict[str, Any]] = {}
         for name, info in self.written().items():
+            log = self._log if name == "run.mcap" and self._log is not None else None
+            if complete and log is not None and [log["dev"], log["ino"], log["size"]] == [
+                info.st_dev, info.st_ino, info.st_size
+            ]:
+                files[name] = {"size": log["size"], "sha256": log["sha256"]}  # the whole log, as its writer hashed it
+                continue
             if name == "run.mcap" and not complete:
-                if self._log is not None:
-                    files[name] = self._log  # the log is being written: what was synced
+                if log is not None:
+                    files[name] = log  # the log is being written: what its last fsync put on disk
                 continue
             key = _identity(info)
             if key not in self._digests:
@@ -389,7 +395,7 @@ def claim_run_folder(path: Path, inputs: Iterable[Path] = ()) -> RunFolder:
     """
     lock = FolderLock(make_folder(path), "run")
     try:
-        _refuse_links(path)
+        refuse_links(path)
         present = _files(path)
         previous = _vouched(path, _read_manifest(path), present)
         inputs = list(inputs)

@@ -52,7 +52,7 @@ from slamfront.mcaplog.topics import (
     STATISTICS_SUFFIX,
     stage_of,
 )
-from slamfront.mcaplog.validate import OrderCheck, check_encodings, numbered_log
+from slamfront.mcaplog.validate import check_channels, check_messages
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import FrameInfo, LoopTruth, RunEvent, StageStatistics, message_class
 from slamfront.outputs import same_file
@@ -166,7 +166,8 @@ def plan_replay(
             f"{log}: the log is damaged, so a replay of it would silently lack what was lost ({summary.problem}); "
             "pass --salvage to replay what can be read, or `slamfront recover` it first"
         )
-    check_encodings(log, summary.topics)
+    check_channels(log, summary.topics)
+    check_messages(log, salvage=not summary.complete)
     raw = log_recipe_data(log)
     if not trust_log:
         refuse_untrusted(raw, f"{log}:{RECIPE_ATTACHMENT}")
@@ -365,13 +366,11 @@ class ReplayFeed(FrameFeed):
 
     def steps(self) -> Iterator[FrameStep]:
         pending: _PendingFrame | None = None
-        order = OrderCheck(numbered_log(self.plan.log), gaps=self.plan.damage is not None)
         for logged in read_messages_and_gaps(self.plan.log, strict=False):
             if logged is None:  # damage: the frame being gathered may lack messages, leave it out
                 self._lost_frames += pending is not None
                 pending = None
                 continue
-            order.check(self.plan.log, logged)
             topic = logged.topic
             if topic == LOOP_TRUTH_TOPIC:
                 self._source.take_truth(logged)

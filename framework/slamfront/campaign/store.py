@@ -23,7 +23,7 @@ from typing import Any
 
 from slamfront.campaign.plan import PlannedRun
 from slamfront.campaign.task import RunOutcome
-from slamfront.outputs import folder_lock, make_folder
+from slamfront.outputs import folder_lock, make_folder, refuse_links
 
 RECORD_FILE = "sweep_run.json"
 METRICS_FILE = "metrics.json"
@@ -46,6 +46,7 @@ class CampaignStore:
         """
         make_folder(self.runs_dir, "campaign folder")
         with folder_lock(self.root, "campaign"):
+            refuse_links(self.root)  # sweep.yaml, results.csv, report.md... are written there
             yield
 
     def finished(self) -> dict[str, Path]:

@@ -17,10 +17,10 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 
 from slamfront.errors import LogError, SlamfrontError
 from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.reader import LoggedMessage, check_magic, describe_damage
+from slamfront.mcaplog.reader import LoggedMessage, TopicSummary, check_magic, describe_damage
 from slamfront.mcaplog.scan import RecordScanner
 from slamfront.mcaplog.topics import LOG_TOPIC
-from slamfront.mcaplog.validate import READABLE_ENCODINGS, OrderCheck, numbered_log
+from slamfront.mcaplog.validate import OrderCheck, channel_problem, numbered_log
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.outputs import make_folder, refuse_overwrite
 
@@ -124,8 +124,14 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
             damaged = not state.complete or state.problems or state.orphan_messages
             if damaged:  # records lost to damage leave gaps in the numbering: the damage says it
                 changes = [c for c in changes if " missing" not in c]
-            changes += [f"{c.topic}: message encoding {c.message_encoding!r} is not one slamfront reads"
-                        for c in channels.values() if c.message_encoding not in READABLE_ENCODINGS]
+            for channel in channels.values():
+                schema = schemas.get(channel.schema_id)
+                problem = channel_problem(TopicSummary(
+                    channel.topic, schema.name if schema else "", schema.encoding if schema else "",
+                    channel.message_encoding,
+                ))
+                if problem and problem not in changes:
+                    changes.append(problem)
             complete = not damaged and not changes
             problem = describe_damage(state, last_time or None) if damaged else None
             if not complete:

@@ -9,8 +9,9 @@ class and encode back to the same bytes (bit-exact round trip). Foxglove message
 panels line them up in time and the 3-D panel can place them.
 
 Two more checks catch a log that was changed after it was written, even when every
-CRC was recomputed: a message encoding slamfront cannot read (:func:`check_encodings`),
-and messages duplicated, reordered or dropped (:class:`OrderCheck`: slamfront's writer
+CRC was recomputed: a channel slamfront would not have written (a message encoding it
+cannot read, or a schema that is not the one it writes on that topic:
+:func:`channel_problem`), and messages duplicated, reordered or dropped (:class:`OrderCheck`: slamfront's writer
 numbers each channel's messages 0, 1, 2, ..., and every frame has one ``/frames``
 message, in order). ``replay`` refuses such a log with the same one-line message.
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import re
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -28,8 +30,29 @@ import foxglove_schemas_protobuf
 from google.protobuf.message import DecodeError
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import LoggedMessage, TopicSummary, read_messages, summarize, writer_library
-from slamfront.mcaplog.topics import FRAMES_TOPIC
+from slamfront.mcaplog.reader import (
+    LoggedMessage,
+    TopicSummary,
+    read_messages,
+    read_messages_and_gaps,
+    summarize,
+    writer_library,
+)
+from slamfront.mcaplog.topics import (
+    CALIBRATION_TOPIC,
+    DEPTH_TOPIC,
+    EVENTS_TOPIC,
+    FRAMES_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    IMAGE_TOPIC,
+    LOG_TOPIC,
+    LOOP_TRUTH_TOPIC,
+    METRICS_TOPIC,
+    POINTS_TOPIC,
+    SCENE_TOPIC,
+    TF_TOPIC,
+    stage_of,
+)
 from slamfront.messages import message_class
 from slamfront.text import shorten
 
@@ -49,23 +72,46 @@ def foxglove_message_types() -> dict[str, Any]:
 READABLE_ENCODINGS = ("json", "protobuf")
 """Message encodings slamfront decodes; a channel in any other is named, never skipped."""
 
+_SCHEMA_ENCODING = {"json": "jsonschema", "protobuf": "protobuf"}
+_FIXED_TOPICS = {
+    FRAMES_TOPIC: "slamfront.FrameInfo", EVENTS_TOPIC: "slamfront.RunEvent", METRICS_TOPIC: "slamfront.RunMetrics",
+    LOOP_TRUTH_TOPIC: "slamfront.LoopTruth", IMAGE_TOPIC: "foxglove.CompressedImage",
+    DEPTH_TOPIC: "foxglove.RawImage", CALIBRATION_TOPIC: "foxglove.CameraCalibration",
+    POINTS_TOPIC: "foxglove.PointCloud", GROUND_TRUTH_TOPIC: "foxglove.PoseInFrame", TF_TOPIC: "foxglove.FrameTransforms",
+    LOG_TOPIC: "foxglove.Log", SCENE_TOPIC: "foxglove.SceneUpdate",
+}
+"""The schema slamfront writes on each of its frame and run topics."""
 
-def encoding_problem(topic: TopicSummary) -> str | None:
-    """Why ``topic``'s messages cannot be read (an unknown message encoding), or None."""
-    if topic.message_encoding in READABLE_ENCODINGS:
-        return None
-    return (
-        f"{topic.topic}: message encoding {topic.message_encoding!r} is not one slamfront reads "
-        f"({' or '.join(READABLE_ENCODINGS)}); its {topic.count} messages cannot be decoded"
-    )
+
+def channel_problem(topic: TopicSummary) -> str | None:
+    """Why ``topic`` is not a channel slamfront wrote, or None: its message encoding is one
+    slamfront cannot read, does not go with its schema's encoding, or its schema is not
+    the one slamfront writes there (a stage's JSON messages go on ``/<stage>/<type in
+    snake_case>``, :func:`~slamfront.mcaplog.topics.topic_for`)."""
+    encoding, name = topic.message_encoding, topic.schema_name
+    if encoding not in READABLE_ENCODINGS:
+        return (
+            f"{topic.topic}: message encoding {encoding!r} is not one slamfront reads "
+            f"({' or '.join(READABLE_ENCODINGS)}): its messages cannot be decoded"
+        )
+    if topic.schema_encoding != _SCHEMA_ENCODING[encoding]:
+        return f"{topic.topic}: {encoding} messages with a {topic.schema_encoding or 'missing'!r} schema cannot be decoded"
+    expected = _FIXED_TOPICS.get(topic.topic)
+    if expected is None and encoding == "json" and stage_of(topic.topic) is not None:
+        snake = re.sub(r"(?<!^)(?=[A-Z])", "_", name.rpartition(".")[2]).lower()
+        if topic.topic != f"/{stage_of(topic.topic)}/{snake}":
+            return f"{topic.topic}: carries {name!r} messages, which slamfront writes on /{stage_of(topic.topic)}/{snake}"
+    elif expected is not None and name != expected:
+        return f"{topic.topic}: carries {name!r} messages where slamfront writes {expected!r}"
+    return None
 
 
-def check_encodings(path: Path, topics: list[TopicSummary]) -> None:
-    """:raises LogError: a topic of ``path`` has a message encoding slamfront cannot read."""
+def check_channels(path: Path, topics: list[TopicSummary]) -> None:
+    """:raises LogError: a topic of ``path`` is not one slamfront wrote (:func:`channel_problem`)."""
     for topic in topics:
-        problem = encoding_problem(topic)
+        problem = channel_problem(topic)
         if problem:
-            raise LogError(f"{path}: {problem}")
+            raise LogError(f"{path}: {problem}; the log was changed after it was written")
 
 
 class OrderCheck:
@@ -91,10 +137,16 @@ class OrderCheck:
             expected = self._next.get(message.topic, 0)
             self._next[message.topic] = max(expected, message.sequence + 1)
             if message.sequence < expected:
-                return f"{where}: sequence number {message.sequence} comes again or out of order (after {expected - 1}): a duplicated or reordered message"
+                return (
+                    f"{where}: sequence number {message.sequence} where {expected} was expected: a duplicated or "
+                    "reordered message"
+                )
             if message.sequence > expected and not self._gaps:
                 lost = message.sequence - expected
-                return f"{where}: sequence number {message.sequence} after {expected - 1}: {lost} message{'s' * (lost > 1)} missing"
+                return (
+                    f"{where}: sequence number {message.sequence} where {expected} was expected: {lost} "
+                    f"message{'s' * (lost > 1)} missing (or moved)"
+                )
         if message.topic == FRAMES_TOPIC:
             try:
                 frame = int(message.decoded.frame)
@@ -110,7 +162,26 @@ class OrderCheck:
         """:raises LogError: naming ``path`` and what is wrong with ``message`` coming next."""
         problem = self.problem(message)
         if problem:
-            raise LogError(f"{path}: {problem}; the log was changed after it was written (`slamfront inspect --validate` lists every problem)")
+            raise LogError(
+                f"{path}: {problem}; the log was changed after it was written "
+                "(`slamfront inspect --validate` lists every problem)"
+            )
+
+
+def check_messages(path: Path, salvage: bool = False) -> None:
+    """Read every message of ``path`` once (decoding only ``/frames``) and stop at the first
+    sign that it was changed after it was written (:class:`OrderCheck`), before anything
+    is done with it: a message missing for one frame is seen only when the next message
+    of its channel arrives, after that frame would have been used.
+
+    :param salvage: a damaged log read as far as it can be: gaps (what the damage took) pass.
+    :raises LogError: a duplicated, reordered or missing message; or damage the summary
+        did not show (when not ``salvage``).
+    """
+    order = OrderCheck(numbered_log(path), gaps=salvage)
+    for message in read_messages_and_gaps(path, strict=not salvage):
+        if message is not None:
+            order.check(path, message)
 
 
 def numbered_log(path: Path) -> bool:
@@ -144,7 +215,7 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
     for topic in summary.topics:
         result.n_topics += 1
         kind = (topic.schema_encoding, topic.message_encoding)
-        unreadable = encoding_problem(topic)
+        unreadable = channel_problem(topic)
         if unreadable:
             result.problems.append(unreadable)
         elif kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:

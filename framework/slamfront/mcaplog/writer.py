@@ -76,8 +76,8 @@ class RunLogWriter:
         when a chunk is full and at the end).
     :param critical: a context manager factory wrapped around every change to the file,
         so a signal cannot cut a record in two (see :class:`slamfront.interrupts.Interrupts`).
-    :param on_sync: called after each fsync with the size of the file and the SHA-256 of
-        its bytes (:meth:`slamfront.outputs.RunFolder.log_synced`).
+    :param on_sync: called after each fsync (and after closing) with the size of the file
+        and the SHA-256 of its bytes (:meth:`slamfront.outputs.RunFolder.log_synced`).
     """
 
     def __init__(
@@ -288,6 +288,8 @@ class RunLogWriter:
                 os.fsync(self._stream.fileno())
             finally:
                 self._stream.close()
+        if self._on_sync is not None:  # the whole file: its hash without reading it back
+            self._on_sync(self._stream.size, self._stream.sha256.hexdigest())
 
     def __enter__(self) -> RunLogWriter:
         return self
