@@ -49,14 +49,13 @@ import os
 import platform
 import random
 import resource
-import signal
 import struct
 import sys
 import tempfile
 import time
 import traceback
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -70,9 +69,10 @@ sys.path.insert(0, str(ROOT))
 from common import peak_rss_mb, publish, table  # noqa: E402
 
 from tests import crafted_logs  # noqa: E402
+from tests.test_hostile_inputs import _CaseTimeout, _time_limit, record_offsets  # noqa: E402
 
 MAGIC = b"\x89MCAP0\r\n"
-CHUNK, DATA_END, FOOTER = 0x06, 0x0F, 0x02
+CHUNK, DATA_END = 0x06, 0x0F
 ADDRESS_SPACE = 4 << 30
 COMMANDS = ("inspect --validate", "replay", "recover")
 
@@ -121,21 +121,9 @@ def messages_of(content: tuple[Any, ...]) -> collections.Counter[Any]:
 # -- mutations --------------------------------------------------------------------------------
 
 
-def top_records(data: bytes) -> list[tuple[int, int, int]]:
-    """(offset, opcode, length) of every top-level record up to the footer."""
-    found, position = [], len(MAGIC)
-    while position + 9 <= len(data):
-        opcode, length = struct.unpack_from("<BQ", data, position)
-        found.append((position, opcode, length))
-        if opcode == FOOTER or position + 9 + length > len(data):
-            break
-        position += 9 + length
-    return found
-
-
 def damage(data: bytes, rng: random.Random) -> tuple[str, bytes]:
     """One accident, the CRCs left as they were."""
-    records = top_records(data)
+    records = record_offsets(data)
     kind = rng.choice(("flip", "truncate", "zero", "append", "length", "record_drop", "record_dup"))
     mutated = bytearray(data)
     if kind == "flip":
@@ -210,7 +198,7 @@ def inner(data: bytes, rng: random.Random) -> tuple[str, bytes]:
     """Bytes (or an inner record's length) changed inside an uncompressed chunk, its CRC
     and the data section's CRC recomputed."""
     mutated = bytearray(data)
-    chunks = [(offset, length) for offset, opcode, length in top_records(data) if opcode == CHUNK]
+    chunks = [(offset, length) for offset, opcode, length in record_offsets(data) if opcode == CHUNK]
     offset, _ = rng.choice(chunks)
     body = offset + 9
     crc_at = body + 24
@@ -232,30 +220,12 @@ def inner(data: bytes, rng: random.Random) -> tuple[str, bytes]:
                           length ^ (1 << rng.randrange(40))))
         struct.pack_into("<Q", mutated, where + 1, new)
     struct.pack_into("<I", mutated, crc_at, zlib.crc32(mutated[records_at : records_at + records_length]))
-    data_end = next(o for o, opcode, _ in top_records(data) if opcode == DATA_END)
+    data_end = next(o for o, opcode, _ in record_offsets(data) if opcode == DATA_END)
     struct.pack_into("<I", mutated, data_end + 9, zlib.crc32(mutated[:data_end]))
     return kind, bytes(mutated)
 
 
 # -- running the commands -----------------------------------------------------------------------
-
-
-class _Hang(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def time_limit(seconds: int) -> Iterator[None]:
-    def expire(_signum: int, _frame: Any) -> None:
-        raise _Hang
-
-    previous = signal.signal(signal.SIGALRM, expire)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
 
 
 def call(argv: list[str], timeout: int) -> tuple[Any, str, str, float]:
@@ -264,9 +234,9 @@ def call(argv: list[str], timeout: int) -> tuple[Any, str, str, float]:
     out, err = io.StringIO(), io.StringIO()
     started = time.perf_counter()
     try:
-        with time_limit(timeout), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        with _time_limit(timeout), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code: Any = main(argv)
-    except _Hang:
+    except _CaseTimeout:
         code = "hang"
     except BaseException:  # noqa: BLE001 - a traceback is what the fuzz counts
         code = "traceback"

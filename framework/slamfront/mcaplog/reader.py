@@ -19,7 +19,7 @@ from typing import Any
 
 from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile
+from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, DataEnd, Header, Message, Metadata, Schema
@@ -116,7 +116,9 @@ class LoggedMessage:
             return self._decode()
         except LogError:
             raise
-        except (ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError, DecodeError) as exc:
+        except (
+            ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError, DecodeError, McapError
+        ) as exc:  # McapError: a protobuf schema that does not describe its type (a crafted channel)
             raise LogError(
                 f"{self.topic} message at {self.log_time_ns} ns does not decode as {self.schema_name or 'its schema'}: "
                 f"{type(exc).__name__}: {shorten(str(exc), 160)}"

@@ -5,6 +5,11 @@ complete messages at the start of a chunk the file ends inside), with its bytes,
 and channel, and so are the metadata and attachments. The new file is a finalised MCAP
 with a summary; a ``recovery`` metadata record and a last ``/log`` line say what was
 lost, since the run's own last line is gone with the end of the file.
+
+A record read twice (a duplicated chunk or message of a slamfront log, whose messages
+are numbered per channel) is kept once. Signs that the file was changed after it was
+written (messages duplicated, reordered or missing; a channel slamfront would not
+write) are said too: the copy numbers its messages afresh, so it would no longer show them.
 """
 
 from __future__ import annotations
@@ -78,7 +83,9 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
     counts = {"messages": 0, "metadata": 0, "attachments": 0}
     topics: set[str] = set()
     last_time = 0
-    order, changes = OrderCheck(numbered_log(source)), []
+    numbered = numbered_log(source)
+    order, changes = OrderCheck(numbered), []
+    seen: dict[tuple[str, int], tuple[int, int]] = {}  # a numbered log's messages, to keep a duplicated one once
     with open(source, "rb") as stream:
         check_magic(source, stream)
         scanner = RecordScanner(stream, source.stat().st_size)
@@ -93,19 +100,24 @@ def _copy_readable(source: Path, partial: Path, target: Path, compression: str, 
                 elif isinstance(record, Message):
                     channel = channels[record.channel_id]
                     schema = schemas.get(channel.schema_id)
+                    data = bytes(record.data)
                     change = order.problem(LoggedMessage(
                         channel.topic, schema.name if schema else "", channel.message_encoding, record.log_time,
-                        record.sequence, bytes(record.data),
+                        record.sequence, data,
                     ))
                     if change:
                         changes.append(change)
+                    key, fingerprint = (channel.topic, record.sequence), (record.log_time, hash(data))
+                    if numbered and seen.get(key) == fingerprint:
+                        continue  # the same record read twice (a duplicated record): kept once
+                    seen[key] = fingerprint
                     log.write_raw(
                         channel.topic,
                         schema.name if schema else "",
                         schema.encoding if schema else "",
                         bytes(schema.data) if schema else b"",
                         channel.message_encoding,
-                        bytes(record.data),
+                        data,
                         record.log_time,
                         record.publish_time,
                     )
