@@ -998,3 +998,25 @@ def test_run_help_says_what_a_sigkill_can_lose(capsys: pytest.CaptureFixture[str
         main(["run", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "SIGKILL" in text and "log.sync_seconds" in text and "slamfront recover" in text
+
+
+def test_decode_image_reads_the_declared_size_before_decoding(monkeypatch: pytest.MonkeyPatch) -> None:
+    from slamfront.errors import DataError
+    from slamfront.imageio import decode_image, declared_size
+
+    rgb = np.zeros((6, 8, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    data = cv2.imencode(".png", rgb[..., ::-1])[1].tobytes()
+    assert declared_size(data, "x") == (8, 6)
+    assert decode_image(data, "x")[0, 0].tolist() == [200, 0, 0]
+    assert decode_image(data, "x", "gray").shape == (6, 8)
+    deep = cv2.imencode(".png", np.full((6, 8), 4000, np.uint16))[1].tobytes()
+    assert decode_image(deep, "d", "unchanged").dtype == np.uint16 and decode_image(deep, "d")[0, 0, 0] == 4000 >> 8
+    monkeypatch.setattr(cv2, "imdecode", lambda *_a: pytest.fail("decoded before the size was checked"))
+    with pytest.raises(DataError, match=r"frame 3: .*20000x20000.*image_pixels"):
+        decode_image(png_declaring(20000, 20000), "frame 3")
+    monkeypatch.setenv("SLAMFRONT_LIMITS", "image_pixels=40")
+    with pytest.raises(DataError, match="8x6"):
+        decode_image(data, "x")
+    with pytest.raises(DataError, match="no image format recognises its header"):
+        decode_image(b"not an image at all", "x")

@@ -55,7 +55,9 @@ def declared_size(data: bytes, what: str) -> tuple[int, int]:
     if size is None:
         raise DataError(f"{what}: not a readable image (no image format recognises its header)")
     width, height = size
-    problem = over_limit("image_pixels", width * height, f"the pixel count of the {width}x{height} image it declares")
+    problem = over_limit(
+        "image_pixels", width * height, f"the pixel count of the {width}x{height} image it declares"
+    )
     if problem:
         raise DataError(f"{what}: {problem}")
     return width, height

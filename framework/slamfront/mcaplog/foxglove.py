@@ -108,7 +108,8 @@ def decode_depth(message: RawImage, what: str = "a logged depth image") -> np.nd
     :raises DataError: the data does not hold the declared width x height (or exceeds the pixel limit).
     """
     dtype = np.dtype("<u2" if message.encoding == "16UC1" else "<f4")
-    problem = over_limit("image_pixels", message.width * message.height, f"the number of pixels of its {message.width}x{message.height} header")
+    size = f"{message.width}x{message.height}"
+    problem = over_limit("image_pixels", message.width * message.height, f"the pixel count of the {size} image it declares")
     if problem:
         raise DataError(f"{what}: {problem}")
     if len(message.data) != message.width * message.height * dtype.itemsize:
