@@ -26,7 +26,7 @@ import time
 import traceback
 import zlib
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,7 @@ from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
+from tests import crafted_logs
 from tests.helpers import rewrite_log
 
 MEMORY_LIMIT = 3 << 30
@@ -220,6 +221,27 @@ def bomb_log(path: Path, declared: int, compression: str = "zstd") -> Path:
     return path
 
 
+def _with_image(data: bytes, encoded: bytes) -> bytes:
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+    message = CompressedImage.FromString(data)
+    message.data = encoded
+    return message.SerializeToString()
+
+
+def png_declaring(width: int, height: int) -> bytes:
+    """A small PNG whose header declares ``width`` x ``height`` RGB pixels (its data holds a few rows)."""
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return MAGIC_PNG + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(bytes(1 << 16))) + chunk(b"IEND", b"")
+
+
+MAGIC_PNG = b"\x89PNG\r\n\x1a\n"
+
+
 def write_module(folder: Path, name: str, source: str) -> Path:
     path = folder / f"{name}.py"
     path.write_text(textwrap.dedent(source))
@@ -365,6 +387,46 @@ def build_cases(tmp: Path, log: Path) -> dict[str, Case]:  # noqa: PLR0915 (one 
     cases["limits_are_overridable"] = Case(
         ["run", "demo", "-o", tmp / "r9"], ("frames_per_traversal", "over the limit of 100 "),
         env={"SLAMFRONT_LIMITS": "frames=100"})
+    # image bombs: the declared size is read from the header and checked before decoding
+    bombs = tmp / "bombs"
+    bombs.mkdir()
+    cv2.imwrite(str(bombs / "0.png"), np.full((24, 32, 3), 128, np.uint8))
+    (bombs / "1.png").write_bytes(png_declaring(20000, 20000))
+    folder_recipe = tmp / "bomb_folder.yaml"
+    folder_recipe.write_text(yaml.safe_dump({**BASE_RECIPE, "source": {"plugin": "image_folder", "params": {
+        "folder": str(bombs)}}}))
+    cases["png_bomb_in_an_image_folder"] = Case(
+        ["run", folder_recipe, "-o", tmp / "rib", "-q"], ("1.png", "20000x20000", "image_pixels"),
+        inputs=(bombs / "1.png",))
+    capped = tmp / "capped"
+    capped.mkdir()
+    (capped / "0.png").write_bytes(png_declaring(40000, 40000))  # beyond OpenCV's own cap of 2^30 pixels
+    capped_recipe = tmp / "capped.yaml"
+    capped_recipe.write_text(yaml.safe_dump({**BASE_RECIPE, "source": {"plugin": "image_folder", "params": {
+        "folder": str(capped)}}}))
+    cases["png_beyond_opencvs_pixel_cap"] = Case(["run", capped_recipe, "-o", tmp / "ric", "-q"],
+                                                 ("0.png", "40000x40000", "over the limit"))
+    cases["png_beyond_opencvs_pixel_cap_with_the_limit_raised"] = Case(
+        ["run", capped_recipe, "-o", tmp / "ric2", "-q"], ("0.png", "OpenCV's cap"),
+        env={"SLAMFRONT_LIMITS": "image_pixels=2e9"})
+    sequence = tmp / "rgbd_bomb"
+    for folder in ("color", "depth"):
+        (sequence / folder).mkdir(parents=True)
+    cv2.imwrite(str(sequence / "color" / "0.png"), np.full((24, 32, 3), 128, np.uint8))
+    (sequence / "depth" / "0.png").write_bytes(png_declaring(30000, 30000))
+    rgbd_bomb = tmp / "rgbd_bomb.yaml"
+    rgbd_bomb.write_text(yaml.safe_dump({**BASE_RECIPE, "source": {"plugin": "rgbd_folder", "params": {
+        "root": str(sequence)}}}))
+    cases["png_bomb_as_a_datasets_depth_image"] = Case(
+        ["run", rgbd_bomb, "-o", tmp / "rid", "-q"], ("depth/0.png", "30000x30000", "image_pixels"))
+    exact = run_pipeline(build_pipeline(parse_recipe({**BASE_RECIPE, "log": {
+        **BASE_RECIPE["log"], "image_format": "png", "depth": True, "depth_encoding": "32FC1"}}, "exact.yaml"),
+        "exact.yaml"), "exact.yaml", tmp / "exact", progress=False).log_path
+    logged_bomb = with_message(exact, tmp / "logged_bomb.mcap", "/camera/image",
+                               lambda data: _with_image(data, png_declaring(20000, 20000)))
+    cases["png_bomb_in_a_log_replay"] = Case(
+        ["replay", logged_bomb, "-o", tmp / "rilb", "-q", "--from", "descriptor"],
+        ("logged_bomb.mcap", "/camera/image", "20000x20000", "image_pixels"), inputs=(logged_bomb,))
     declared = bomb_log(tmp / "bomb_declared.mcap", declared=4 << 30)
     undeclared = bomb_log(tmp / "bomb_undeclared.mcap", declared=1024)
     lz4_bomb = bomb_log(tmp / "bomb_lz4.mcap", declared=1024, compression="lz4")
@@ -422,6 +484,51 @@ def build_cases(tmp: Path, log: Path) -> dict[str, Case]:  # noqa: PLR0915 (one 
         ["eval", "traj", trajectory, trajectory, "--plot", tmp / "missing" / "deeper" / "plot.png"], ("ate_rmse_m",),
         code=0, inputs=(trajectory,))
 
+    # crafted logs: well-formed files whose messages were re-encoded, repeated, reordered or dropped
+    for name, change, needles in (
+        ("cbor_encoding", crafted_logs.with_encoding("/descriptor/", "cbor"), ("/descriptor/", "'cbor'")),
+        ("frames_written_three_times", crafted_logs.repeated("/frames", 3), ("/frames", "frame 0 after frame 0")),
+        ("frames_out_of_order", crafted_logs.swapped("/frames", 2), ("/frames", "frame 2 after frame 3")),
+        ("a_frame_message_dropped", crafted_logs.dropped("/frames", 3), ("/frames", "1 message missing")),
+        ("a_message_duplicated", crafted_logs.repeated("/frames", 2, renumber=False),
+         ("/frames", "a duplicated or reordered message")),
+        ("a_descriptor_relabelled", lambda m: [replace(e, schema_name="slamfront.FrameInfo")
+                                               if e.topic.startswith("/descriptor/features") else e for e in m],
+         ("/descriptor/features", "slamfront.FrameInfo")),
+    ):
+        crafted = crafted_logs.craft(log, tmp / f"crafted_{name}.mcap", change)
+        cases[f"crafted_log_{name}_validate"] = Case(["inspect", crafted, "--validate"], needles, inputs=(crafted,))
+        cases[f"crafted_log_{name}_replay"] = Case(["replay", crafted, "-o", tmp / f"rcl_{name}", "-q"], needles,
+                                                   inputs=(crafted,), absent=(tmp / f"rcl_{name}",))
+        cases[f"crafted_log_{name}_recover"] = Case(["recover", crafted, "-o", tmp / f"rcl_{name}.mcap"],
+                                                    ("changed: ", needles[0]), code=0, inputs=(crafted,),
+                                                    forbidden=("complete and undamaged",))
+    unchanged = crafted_logs.craft(log, tmp / "crafted_unchanged.mcap", lambda messages: messages)
+    cases["crafted_log_unchanged_validate"] = Case(["inspect", unchanged, "--validate"], ("valid:",), code=0)
+
+    # eval traj: timestamps that repeat or go back; --max-frames; inspect on a FIFO
+    twice = tmp / "twice.txt"  # an estimate written twice over: 0.0-2.4 s, then 0.0-2.4 s again
+    twice.write_text("".join(f"{t / 10:.1f} {t + 50 * k} 0 0 0 0 0 1\n" for k in range(2) for t in range(25)))
+    truth = tmp / "truth.txt"
+    truth.write_text("".join(f"{t / 10:.1f} {t} 0 0 0 0 0 1\n" for t in range(25)))
+    cases["eval_traj_repeated_timestamps"] = Case(
+        ["eval", "traj", truth, twice], ("twice.txt", "25 of its 50 timestamps repeat", "1 go back", "--repeated"))
+    cases["eval_traj_repeated_timestamps_keep_first"] = Case(
+        ["eval", "traj", truth, twice, "--repeated", "first"], ("associated:   25 pose pairs",),
+        code=0)
+    backwards = tmp / "backwards.txt"
+    backwards.write_text("".join(reversed(truth.read_text().splitlines(keepends=True))))
+    cases["eval_traj_decreasing_timestamps"] = Case(["eval", "traj", truth, backwards],
+                                                    ("backwards.txt", "0 of its 25", "24 go back"))
+    cases["max_frames_minus_one"] = Case(["run", "demo", "-o", tmp / "rmf", "--max-frames", "-1"],
+                                         ("--max-frames -1", "at least 1"), absent=(tmp / "rmf",))
+    cases["max_frames_zero_in_a_sweep"] = Case(["sweep", "synthetic_nn", "--dry-run", "--max-frames", "0"],
+                                               ("--max-frames 0", "at least 1"))
+    fifo = tmp / "a_fifo.mcap"
+    os.mkfifo(fifo)
+    cases["inspect_a_fifo"] = Case(["inspect", fifo], ("a_fifo.mcap", "is a FIFO"))
+    cases["replay_a_fifo"] = Case(["replay", fifo, "-o", tmp / "rff", "-q"], ("a_fifo.mcap", "is a FIFO"))
+
     def not_json(_data: bytes) -> bytes:
         return b"{this is not JSON"
 
@@ -459,6 +566,8 @@ CASE_NAMES = [
     "match_file_entries_stay_in_the_dataset_folder",
     "yaml_alias_bomb", "yaml_recursive_alias", "yaml_deep_nesting", "sweep_alias_bomb", "sweep_of_a_billion_runs",
     "frames_per_traversal_1e13", "route_length_1e11", "limits_are_overridable",
+    "png_bomb_in_an_image_folder", "png_beyond_opencvs_pixel_cap", "png_beyond_opencvs_pixel_cap_with_the_limit_raised",
+    "png_bomb_as_a_datasets_depth_image", "png_bomb_in_a_log_replay",
     *(f"decompression_bomb_{kind}_{command}" for kind in ("declared", "undeclared", "lz4")
       for command in ("inspect", "recover", "replay")),
     "inspect_exits_2_on_a_damaged_chunk", "replay_refuses_a_damaged_log", "replay_salvage_says_what_was_lost",
@@ -469,6 +578,12 @@ CASE_NAMES = [
     *(f"crafted_message_{name}_{command}" for name in ("not_json", "object_dtype", "wrong_shape")
       for command in ("replay", "diff")),
     "deeply_nested_json_validate", "binary_recipe_attachment",
+    *(f"crafted_log_{name}_{command}" for name in (
+        "cbor_encoding", "frames_written_three_times", "frames_out_of_order", "a_frame_message_dropped",
+        "a_message_duplicated", "a_descriptor_relabelled") for command in ("validate", "replay", "recover")),
+    "crafted_log_unchanged_validate", "eval_traj_repeated_timestamps", "eval_traj_repeated_timestamps_keep_first",
+    "eval_traj_decreasing_timestamps", "max_frames_minus_one", "max_frames_zero_in_a_sweep", "inspect_a_fifo",
+    "replay_a_fifo",
 ]
 
 
@@ -876,3 +991,32 @@ def test_the_crc_that_guards_every_byte_is_the_one_mcap_defines(base_log: Path) 
     data_end = next(o for o, opcode, _ in record_offsets(data) if opcode == 0x0F)
     (crc,) = struct.unpack_from("<I", data, data_end + 9)
     assert crc != 0 and crc == zlib.crc32(data[:data_end])  # written with data CRCs on
+
+
+def test_run_help_says_what_a_sigkill_can_lose(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "SIGKILL" in text and "log.sync_seconds" in text and "slamfront recover" in text
+
+
+def test_decode_image_reads_the_declared_size_before_decoding(monkeypatch: pytest.MonkeyPatch) -> None:
+    from slamfront.errors import DataError
+    from slamfront.imageio import decode_image, declared_size
+
+    rgb = np.zeros((6, 8, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    data = cv2.imencode(".png", rgb[..., ::-1])[1].tobytes()
+    assert declared_size(data, "x") == (8, 6)
+    assert decode_image(data, "x")[0, 0].tolist() == [200, 0, 0]
+    assert decode_image(data, "x", "gray").shape == (6, 8)
+    deep = cv2.imencode(".png", np.full((6, 8), 4000, np.uint16))[1].tobytes()
+    assert decode_image(deep, "d", "unchanged").dtype == np.uint16 and decode_image(deep, "d")[0, 0, 0] == 4000 >> 8
+    monkeypatch.setattr(cv2, "imdecode", lambda *_a: pytest.fail("decoded before the size was checked"))
+    with pytest.raises(DataError, match=r"frame 3: .*20000x20000.*image_pixels"):
+        decode_image(png_declaring(20000, 20000), "frame 3")
+    monkeypatch.setenv("SLAMFRONT_LIMITS", "image_pixels=40")
+    with pytest.raises(DataError, match="8x6"):
+        decode_image(data, "x")
+    with pytest.raises(DataError, match="no image format recognises its header"):
+        decode_image(b"not an image at all", "x")

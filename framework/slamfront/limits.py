@@ -29,7 +29,9 @@ class Limits(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     frames: int = Field(1_000_000, gt=0, description="frames one generated source may produce")
-    image_pixels: int = Field(50_000_000, gt=0, description="pixels of one generated image")
+    image_pixels: int = Field(
+        50_000_000, gt=0, description="pixels of one image: generated, or declared by a file's or a logged image's header"
+    )
     world_length_m: float = Field(100_000.0, gt=0, description="length of a generated world's route, metres")
     sweep_runs: int = Field(10_000, gt=0, description="runs one sweep file may expand to")
     yaml_nodes: int = Field(200_000, gt=0, description="nodes of a YAML document with its aliases expanded")

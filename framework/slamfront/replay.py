@@ -52,6 +52,7 @@ from slamfront.mcaplog.topics import (
     STATISTICS_SUFFIX,
     stage_of,
 )
+from slamfront.mcaplog.validate import check_channels, check_messages
 from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.messages import FrameInfo, LoopTruth, RunEvent, StageStatistics, message_class
 from slamfront.outputs import same_file
@@ -165,6 +166,8 @@ def plan_replay(
             f"{log}: the log is damaged, so a replay of it would silently lack what was lost ({summary.problem}); "
             "pass --salvage to replay what can be read, or `slamfront recover` it first"
         )
+    check_channels(log, summary.topics)
+    check_messages(log, salvage=not summary.complete)
     raw = log_recipe_data(log)
     if not trust_log:
         refuse_untrusted(raw, f"{log}:{RECIPE_ATTACHMENT}")
@@ -426,14 +429,14 @@ class ReplayFeed(FrameFeed):
         where = f"{self.plan.log}: frame {info.frame}"
         if IMAGE_TOPIC not in by_topic:
             raise LogError(f"{where} has no image on {IMAGE_TOPIC}")
-        image = foxglove.decode_image(CompressedImage.FromString(by_topic[IMAGE_TOPIC].data))
+        image = foxglove.decode_image(CompressedImage.FromString(by_topic[IMAGE_TOPIC].data), f"{where} ({IMAGE_TOPIC})")
         if image.shape[:2] != shape:
             raise LogError(f"{where}: the logged image is {image.shape[1]}x{image.shape[0]}, the frame was {info.width}x{info.height}")
         depth = None
         if info.has_depth:
             if DEPTH_TOPIC not in by_topic:
                 raise LogError(f"{where} has no depth on {DEPTH_TOPIC}")
-            depth = foxglove.decode_depth(RawImage.FromString(by_topic[DEPTH_TOPIC].data))
+            depth = foxglove.decode_depth(RawImage.FromString(by_topic[DEPTH_TOPIC].data), f"{where} ({DEPTH_TOPIC})")
         return image, depth
 
     def log_frame(self, log: RunLogWriter, step: FrameStep) -> FrameInfo:

@@ -267,7 +267,7 @@ def execute_run(
                 Interrupts() as interrupts,
                 RunLogWriter(
                     log_path, options.compression, options.chunk_size, library, options.sync_seconds,
-                    interrupts.critical,
+                    interrupts.critical, on_sync=folder.log_synced,
                 ) as log,
             ):
                 log_opened = True
@@ -391,10 +391,11 @@ def execute_run(
             html_path = write_html(report_path)
         phases["report"] = time.perf_counter() - tick
     except BaseException as exc:
+        folder.close()
         if log_opened:
             note_run_failure(exc, log_path, where)
         raise
-    folder.record(complete=True)
+    folder.close()
     return RunResult(out_dir, log_path, metrics_path, report_path, metrics, html_path, phase_seconds=phases)
 
 

@@ -14,7 +14,6 @@ resuming skips it by key, wherever its folder is (factor labels may have been re
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import os
 import shutil
@@ -24,10 +23,8 @@ from typing import Any
 
 from slamfront.campaign.plan import PlannedRun
 from slamfront.campaign.task import RunOutcome
-from slamfront.errors import SlamfrontError
-from slamfront.outputs import make_folder
+from slamfront.outputs import folder_lock, make_folder, refuse_links
 
-LOCK_FILE = ".campaign.lock"
 RECORD_FILE = "sweep_run.json"
 METRICS_FILE = "metrics.json"
 
@@ -41,35 +38,16 @@ class CampaignStore:
 
     @contextlib.contextmanager
     def locked(self) -> Iterator[None]:
-        """Hold the folder's lock for a campaign's lifetime: a second campaign started
-        into the same folder would remove the first one's runs in progress.
+        """Hold the folder's lock for a campaign's lifetime (the same lock a run holds,
+        :func:`slamfront.outputs.folder_lock`): a second campaign, or a run, started into the
+        same folder would remove the first one's runs in progress.
 
         :raises SlamfrontError: another process holds the lock.
         """
         make_folder(self.runs_dir, "campaign folder")
-        path = self.root / LOCK_FILE
-        try:
-            handle = open(path, "a+")
-        except OSError as exc:
-            raise SlamfrontError(f"{path}: cannot create the campaign lock: {exc.strerror or exc}") from None
-        with handle:
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                handle.seek(0)
-                holder = handle.read().strip() or "another process"
-                raise SlamfrontError(
-                    f"{self.root}: another campaign ({holder}) is running in this folder; wait for it to end "
-                    "or choose another -o"
-                ) from None
-            handle.seek(0)
-            handle.truncate()
-            handle.write(f"process {os.getpid()}\n")
-            handle.flush()
-            try:
-                yield
-            finally:
-                fcntl.flock(handle, fcntl.LOCK_UN)  # the OS releases it too if this process dies
+        with folder_lock(self.root, "campaign"):
+            refuse_links(self.root)  # sweep.yaml, results.csv, report.md... are written there
+            yield
 
     def finished(self) -> dict[str, Path]:
         """``{key: run folder}`` of every run recorded as ``ok`` with its metrics present."""

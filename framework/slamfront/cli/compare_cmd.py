@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slamfront.cli.arguments import frame_count
 from slamfront.cli.completion import complete_recipes
 
 
@@ -24,7 +25,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="override applied to every recipe (repeatable)")
     parser.add_argument("--workers", type=int, metavar="N", help="parallel runs (default: the CPU count)")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="stop every run after N frames")
+    parser.add_argument("--max-frames", type=frame_count, metavar="N", help="stop every run after N frames")
     parser.add_argument("--force", action="store_true", help="run again even the runs already finished in DIR")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)

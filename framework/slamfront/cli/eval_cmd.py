@@ -50,6 +50,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                       help="TUM: largest timestamp difference to associate two poses "
                       "(default 0.01 s, evo's; the TUM benchmark's associate.py uses 0.02)")
     traj.add_argument("--offset", type=float, default=0.0, metavar="S", help="TUM: added to the estimate's timestamps")
+    traj.add_argument("--repeated", choices=("first", "last"), metavar="{first,last}",
+                      help="TUM: keep the first (or last) pose of each repeated timestamp and sort by time "
+                      "(default: a file whose timestamps repeat or go back is refused)")
     traj.add_argument("--plot", type=Path, metavar="PNG", help="also draw ground truth and aligned estimate (top view)")
     traj.add_argument("--json", action="store_true", help="print the metrics as JSON")
     traj.set_defaults(handler=run_traj)
@@ -62,10 +65,13 @@ def load_and_evaluate(args: argparse.Namespace) -> tuple[Trajectory, Trajectory,
     """Read both files and compute ATE/RPE, naming the files in any error."""
     from slamfront.core.errors import CoreError
     from slamfront.core.trajectory import evaluate_poses, evaluate_trajectories
-    from slamfront.formats.poses import TRAJECTORY_READERS
+    from slamfront.formats.poses import TRAJECTORY_READERS, in_time_order
 
     read = TRAJECTORY_READERS[args.format]
     gt, est = read(args.ground_truth), read(args.estimate)
+    if args.format in TIMED_FORMATS:
+        gt = in_time_order(gt, args.ground_truth, args.repeated)
+        est = in_time_order(est, args.estimate, args.repeated)
     try:
         if args.format in TIMED_FORMATS:
             result = evaluate_trajectories(

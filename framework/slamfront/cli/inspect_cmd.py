@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
         # what could be read is shown above; the exit status says the file is damaged
         raise LogError(f"{path}: {summary.problem}")
     if not valid:
-        raise LogError(f"{path}: {len(validation.problems)} problem(s) found by --validate")
+        first = printable(shorten(validation.problems[0], 400), keep_newlines=False)
+        raise LogError(f"{path}: {len(validation.problems)} problem(s) found by --validate, the first: {first}")
     return 0
 
 

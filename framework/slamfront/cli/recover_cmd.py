@@ -36,5 +36,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         salvaged = f" ({recovery.salvaged_messages} from the incomplete last chunk)" if recovery.salvaged_messages else ""
         print(f"recovered {kept}{salvaged} into {recovery.target}")
-        print(f"lost: {shorten(recovery.problem or '', 4000)}")
+        if recovery.problem:
+            print(f"lost: {shorten(recovery.problem, 4000)}")
+        if recovery.changes:
+            print(f"changed: {len(recovery.changes)} sign(s) that {recovery.source} was changed after it was written, "
+                  f"the first: {shorten(recovery.changes[0], 400)}")
     return 0

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from slamfront.cli.arguments import frame_count
 from slamfront.errors import RecipeError
 from slamfront.outputs import make_folder
 
@@ -26,7 +27,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                         help="override a recipe field for every curve (repeatable)")
     parser.add_argument("--compare", metavar="KEY=V1,V2,...", help="one curve per value of this field")
     parser.add_argument("--max-k", type=int, default=20, help="largest psi (default 20)")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="only the first N frames of the source")
+    parser.add_argument("--max-frames", type=frame_count, metavar="N", help="only the first N frames of the source")
     parser.set_defaults(handler=run)
 
 

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from slamfront.cli.arguments import frame_count
 from slamfront.cli.completion import complete_overrides, complete_recipes
 from slamfront.outputs import safe_name
 from slamfront.text import shorten
@@ -20,6 +21,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="run a recipe: writes run.mcap, metrics.json, report.md and report.html",
         description="Run a recipe. Writes DIR/run.mcap, DIR/metrics.json, DIR/report.md, DIR/report.html "
         "(one page with the plots inside: open it in a browser) and the plots.",
+        epilog="Ctrl-C and SIGTERM finalise the log. A SIGKILL (or a power cut) cannot: the log is fsynced every "
+        "log.sync_seconds (5 s by default), so up to that much of the run's end is lost; `slamfront recover "
+        "DIR/run.mcap -o FIXED` turns what reached the disk into a finalised log. One run at a time per DIR: a "
+        "rerun replaces only files the previous run wrote and that are unchanged since.",
     )
     recipe_arg = parser.add_argument("recipe", help="recipe file, or the name of a shipped recipe (see `slamfront recipes`)")
     recipe_arg.completer = complete_recipes  # type: ignore[attr-defined]
@@ -31,7 +36,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     ).completer = complete_overrides  # type: ignore[attr-defined]
     parser.add_argument("-p", "--plugin-module", action="append", default=[], metavar="MODULE",
                         help="register an extra plugin module (importable name; repeatable)")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames (a quick smoke run)")
+    parser.add_argument("--max-frames", type=frame_count, metavar="N", help="stop after N frames (a quick smoke run)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
 

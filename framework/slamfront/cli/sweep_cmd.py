@@ -7,6 +7,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from slamfront.cli.arguments import frame_count
+
 if TYPE_CHECKING:
     from slamfront.campaign.backends import Backend
 
@@ -37,7 +39,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                              "write there directly (default: runs send their files back to this machine)")
     parser.add_argument("--worker-data", type=Path, metavar="DIR",
                         help="the data root on the workers (default: each worker's $SLAMFRONT_DATA)")
-    parser.add_argument("--max-frames", type=int, metavar="N", help="stop every run after N frames (a smoke campaign)")
+    parser.add_argument("--max-frames", type=frame_count, metavar="N", help="stop every run after N frames (a smoke campaign)")
     parser.add_argument("--force", action="store_true", help="run again even the runs already finished in DIR")
     parser.add_argument("--dry-run", action="store_true", help="validate the sweep and list its runs; run nothing")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

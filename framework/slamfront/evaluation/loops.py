@@ -25,6 +25,7 @@ import numpy as np
 from slamfront.core.loops import LoopGroundTruth, PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.messages import FrameInfo, LoopConstraint, LoopResult, Message
+from slamfront.outputs import write_atomically
 from slamfront.recipe import EvalOptions
 from slamfront.report import plots
 
@@ -36,8 +37,7 @@ def write_pr_curve(curve: PrecisionRecall, path: Path) -> Path:
     """One row per threshold (decreasing): ``threshold,precision,recall``, full float precision."""
     rows = (f"{t!r},{p!r},{r!r}" for t, p, r in zip(curve.thresholds.tolist(), curve.precision.tolist(),
                                                      curve.recall.tolist()))
-    path.write_text("\n".join(["threshold,precision,recall", *rows]) + "\n")
-    return path
+    return write_atomically(path, "\n".join(["threshold,precision,recall", *rows]) + "\n")
 
 
 def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

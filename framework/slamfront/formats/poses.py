@@ -150,3 +150,33 @@ TRAJECTORY_READERS: Mapping[str, Callable[[Path], Trajectory]] = MappingProxyTyp
     {"tum": read_tum, "kitti": read_kitti, "pose_lines": read_pose_lines, "redwood_log": read_redwood_log}
 )
 """Trajectory file readers by format name."""
+
+
+def in_time_order(trajectory: Trajectory, path: Path, keep: str | None = None) -> Trajectory:
+    """``trajectory`` with increasing timestamps, or a one-line error saying how many are not.
+
+    A timed trajectory whose timestamps repeat or go back cannot be associated by time:
+    an estimate written twice over (0-2.4 s, then 0-2.4 s again) would pair only one of
+    each two poses and score the other half as if it were not there.
+
+    :param keep: ``first`` or ``last``: keep that pose of each timestamp and sort by time,
+        instead of refusing.
+    :raises DataError: timestamps repeat or decrease and ``keep`` is None.
+    """
+    stamps = trajectory.timestamps
+    repeated = len(stamps) - len(np.unique(stamps))
+    backwards = int(np.count_nonzero(np.diff(stamps) < 0))
+    if not repeated and not backwards:
+        return trajectory
+    if keep is None:
+        raise DataError(
+            f"{path}: {repeated} of its {len(stamps)} timestamps repeat an earlier one and {backwards} go back in "
+            "time, so poses cannot be associated by time; pass --repeated first or --repeated last to keep one "
+            "pose per timestamp, in time order"
+        )
+    if keep not in ("first", "last"):
+        raise ValueError(f"keep must be 'first' or 'last', not {keep!r}")
+    order = np.arange(len(stamps)) if keep == "first" else np.arange(len(stamps))[::-1]
+    _, chosen = np.unique(stamps[order], return_index=True)  # sorted by time, first occurrence in `order`
+    indices = order[chosen]
+    return Trajectory(stamps[indices], trajectory.poses[indices])

@@ -26,7 +26,10 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.timestamp_pb2 import Timestamp
 from scipy.spatial.transform import Rotation
 
+from slamfront import imageio
+from slamfront.errors import DataError
 from slamfront.frame import Camera
+from slamfront.limits import over_limit
 
 MAP_FRAME = "map"
 CAMERA_FRAME = "camera"
@@ -99,19 +102,31 @@ def depth_image(depth_m: np.ndarray, stamp_ns: int, encoding: str = "16UC1") -> 
     )
 
 
-def decode_depth(message: RawImage) -> np.ndarray:
-    """(H, W) float32 metres from :func:`depth_image`'s output."""
-    dtype = "<u2" if message.encoding == "16UC1" else "<f4"
+def decode_depth(message: RawImage, what: str = "a logged depth image") -> np.ndarray:
+    """(H, W) float32 metres from :func:`depth_image`'s output.
+
+    :raises DataError: the data does not hold the declared width x height (or exceeds the pixel limit).
+    """
+    dtype = np.dtype("<u2" if message.encoding == "16UC1" else "<f4")
+    size = f"{message.width}x{message.height}"
+    problem = over_limit("image_pixels", message.width * message.height, f"the pixel count of the {size} image it declares")
+    if problem:
+        raise DataError(f"{what}: {problem}")
+    if len(message.data) != message.width * message.height * dtype.itemsize:
+        raise DataError(
+            f"{what}: holds {len(message.data)} bytes, not the {message.width}x{message.height} {message.encoding} "
+            "pixels it declares"
+        )
     pixels = np.frombuffer(message.data, dtype=dtype).reshape(message.height, message.width)
     return pixels.astype(np.float32) / 1000.0 if message.encoding == "16UC1" else pixels.astype(np.float32)
 
 
-def decode_image(message: CompressedImage) -> np.ndarray:
-    """The RGB (or grey) uint8 image of :func:`compressed_image`'s output."""
-    pixels = cv2.imdecode(np.frombuffer(message.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if pixels is None:
-        raise ValueError(f"cannot decode a {message.format} image")
-    return pixels if pixels.ndim == 2 else cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+def decode_image(message: CompressedImage, what: str = "a logged image") -> np.ndarray:
+    """The RGB (or grey) uint8 image of :func:`compressed_image`'s output.
+
+    :raises DataError: undecodable, or over the pixel limit (naming ``what``).
+    """
+    return imageio.decode_image(message.data, what, "unchanged")
 
 
 def point_cloud(

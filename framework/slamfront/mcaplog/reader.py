@@ -7,6 +7,10 @@ summary says what was lost.
 
 from __future__ import annotations
 
+import io
+import os
+import stat
+import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
@@ -14,8 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from google.protobuf.message import DecodeError
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, DataEnd, Header, Message, Metadata, Schema
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from slamfront.errors import LogError
@@ -109,7 +116,9 @@ class LoggedMessage:
             return self._decode()
         except LogError:
             raise
-        except (ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError, DecodeError) as exc:
+        except (
+            ValueError, TypeError, KeyError, IndexError, AttributeError, RecursionError, DecodeError, McapError
+        ) as exc:  # McapError: a protobuf schema that does not describe its type (a crafted channel)
             raise LogError(
                 f"{self.topic} message at {self.log_time_ns} ns does not decode as {self.schema_name or 'its schema'}: "
                 f"{type(exc).__name__}: {shorten(str(exc), 160)}"
@@ -131,12 +140,39 @@ class LoggedMessage:
 
 
 def _open(path: Path) -> Any:
+    """``path`` opened for reading; anything but a regular file (a FIFO, a device, a
+    folder) is refused at once, never read from (a FIFO would block until written to)."""
     try:
-        return open(path, "rb")
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         raise LogError(f"{path}: no such log file") from None
     except OSError as exc:
         raise LogError(f"{path}: cannot read log: {exc.strerror or exc}") from exc
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "not a regular file"
+        raise LogError(f"{path}: is {kind}; a log is read only from a regular file")
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+def writer_library(path: Path | str) -> str:
+    """The ``library`` field of the log's MCAP header (who wrote it; ``""`` when unreadable).
+
+    slamfront's writers start with ``slamfront`` and number each channel's messages 0, 1, 2, ...
+    """
+    with _open(Path(path)) as stream:
+        head = stream.read(len(MAGIC) + 9)
+        if head[: len(MAGIC)] != MAGIC or len(head) < len(MAGIC) + 9:
+            return ""
+        opcode, length = struct.unpack_from("<BQ", head, len(MAGIC))
+        if opcode != Opcode.HEADER or length > 1 << 16:
+            return ""
+        try:
+            return Header.read(ReadDataStream(io.BytesIO(stream.read(length)))).library
+        except (ValueError, UnicodeDecodeError, struct.error, EndOfFile):
+            return ""
 
 
 def check_magic(path: Path, stream: Any) -> None:

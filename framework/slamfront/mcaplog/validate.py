@@ -7,12 +7,20 @@ message is decoded: protobuf messages must parse, JSON messages must decode to t
 class and encode back to the same bytes (bit-exact round trip). Foxglove messages'
 ``timestamp`` must equal their log time and their ``frame_id`` must not be empty, so
 panels line them up in time and the 3-D panel can place them.
+
+Two more checks catch a log that was changed after it was written, even when every
+CRC was recomputed: a channel slamfront would not have written (a message encoding it
+cannot read, or a schema that is not the one it writes on that topic:
+:func:`channel_problem`), and messages duplicated, reordered or dropped (:class:`OrderCheck`: slamfront's writer
+numbers each channel's messages 0, 1, 2, ..., and every frame has one ``/frames``
+message, in order). ``replay`` refuses such a log with the same one-line message.
 """
 
 from __future__ import annotations
 
 import importlib
 import pkgutil
+import re
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -22,7 +30,29 @@ import foxglove_schemas_protobuf
 from google.protobuf.message import DecodeError
 
 from slamfront.errors import LogError
-from slamfront.mcaplog.reader import read_messages, summarize
+from slamfront.mcaplog.reader import (
+    LoggedMessage,
+    TopicSummary,
+    read_messages,
+    read_messages_and_gaps,
+    summarize,
+    writer_library,
+)
+from slamfront.mcaplog.topics import (
+    CALIBRATION_TOPIC,
+    DEPTH_TOPIC,
+    EVENTS_TOPIC,
+    FRAMES_TOPIC,
+    GROUND_TRUTH_TOPIC,
+    IMAGE_TOPIC,
+    LOG_TOPIC,
+    LOOP_TRUTH_TOPIC,
+    METRICS_TOPIC,
+    POINTS_TOPIC,
+    SCENE_TOPIC,
+    TF_TOPIC,
+    stage_of,
+)
 from slamfront.messages import message_class
 from slamfront.text import shorten
 
@@ -37,6 +67,126 @@ def foxglove_message_types() -> dict[str, Any]:
             for name, descriptor in loaded.DESCRIPTOR.message_types_by_name.items():
                 types[descriptor.full_name] = getattr(loaded, name)
     return types
+
+
+READABLE_ENCODINGS = ("json", "protobuf")
+"""Message encodings slamfront decodes; a channel in any other is named, never skipped."""
+
+_SCHEMA_ENCODING = {"json": "jsonschema", "protobuf": "protobuf"}
+_FIXED_TOPICS = {
+    FRAMES_TOPIC: "slamfront.FrameInfo", EVENTS_TOPIC: "slamfront.RunEvent", METRICS_TOPIC: "slamfront.RunMetrics",
+    LOOP_TRUTH_TOPIC: "slamfront.LoopTruth", IMAGE_TOPIC: "foxglove.CompressedImage",
+    DEPTH_TOPIC: "foxglove.RawImage", CALIBRATION_TOPIC: "foxglove.CameraCalibration",
+    POINTS_TOPIC: "foxglove.PointCloud", GROUND_TRUTH_TOPIC: "foxglove.PoseInFrame", TF_TOPIC: "foxglove.FrameTransforms",
+    LOG_TOPIC: "foxglove.Log", SCENE_TOPIC: "foxglove.SceneUpdate",
+}
+"""The schema slamfront writes on each of its frame and run topics."""
+
+
+def channel_problem(topic: TopicSummary) -> str | None:
+    """Why ``topic`` is not a channel slamfront wrote, or None: its message encoding is one
+    slamfront cannot read, does not go with its schema's encoding, or its schema is not
+    the one slamfront writes there (a stage's JSON messages go on ``/<stage>/<type in
+    snake_case>``, :func:`~slamfront.mcaplog.topics.topic_for`)."""
+    encoding, name = topic.message_encoding, topic.schema_name
+    if encoding not in READABLE_ENCODINGS:
+        return (
+            f"{topic.topic}: message encoding {encoding!r} is not one slamfront reads "
+            f"({' or '.join(READABLE_ENCODINGS)}): its messages cannot be decoded"
+        )
+    if topic.schema_encoding != _SCHEMA_ENCODING[encoding]:
+        return f"{topic.topic}: {encoding} messages with a {topic.schema_encoding or 'missing'!r} schema cannot be decoded"
+    expected = _FIXED_TOPICS.get(topic.topic)
+    if expected is None and encoding == "json" and stage_of(topic.topic) is not None:
+        snake = re.sub(r"(?<!^)(?=[A-Z])", "_", name.rpartition(".")[2]).lower()
+        if topic.topic != f"/{stage_of(topic.topic)}/{snake}":
+            return f"{topic.topic}: carries {name!r} messages, which slamfront writes on /{stage_of(topic.topic)}/{snake}"
+    elif expected is not None and name != expected:
+        return f"{topic.topic}: carries {name!r} messages where slamfront writes {expected!r}"
+    return None
+
+
+def check_channels(path: Path, topics: list[TopicSummary]) -> None:
+    """:raises LogError: a topic of ``path`` is not one slamfront wrote (:func:`channel_problem`)."""
+    for topic in topics:
+        problem = channel_problem(topic)
+        if problem:
+            raise LogError(f"{path}: {problem}; the log was changed after it was written")
+
+
+class OrderCheck:
+    """Messages of one log in the order they are read: on each channel of a log slamfront
+    wrote, sequence numbers 0, 1, 2, ... (a duplicated, reordered or lost record breaks
+    the count), and one ``/frames`` message per frame, frame indices increasing.
+
+    :param numbered: check sequence numbers (a slamfront log: :func:`numbered_log`).
+    :param gaps: accept missing sequence numbers (a damaged log read with ``--salvage``,
+        whose damage is reported on its own).
+    """
+
+    def __init__(self, numbered: bool, gaps: bool = False) -> None:
+        self._numbered = numbered
+        self._gaps = gaps
+        self._next: dict[str, int] = {}
+        self._last_frame: int | None = None
+
+    def problem(self, message: LoggedMessage) -> str | None:
+        """What is wrong with ``message`` coming next, or None."""
+        where = f"{message.topic} message at {message.log_time_ns} ns"
+        if self._numbered:
+            expected = self._next.get(message.topic, 0)
+            self._next[message.topic] = max(expected, message.sequence + 1)
+            if message.sequence < expected:
+                return (
+                    f"{where}: sequence number {message.sequence} where {expected} was expected: a duplicated or "
+                    "reordered message"
+                )
+            if message.sequence > expected and not self._gaps:
+                lost = message.sequence - expected
+                return (
+                    f"{where}: sequence number {message.sequence} where {expected} was expected: {lost} "
+                    f"message{'s' * (lost > 1)} missing (or moved)"
+                )
+        if message.topic == FRAMES_TOPIC:
+            try:
+                frame = int(message.decoded.frame)
+            except (LogError, AttributeError, TypeError, ValueError):
+                return None  # a message that does not decode is reported as such
+            last, self._last_frame = self._last_frame, frame if self._last_frame is None else max(frame, self._last_frame)
+            if last is not None and frame <= last:
+                kind = "a duplicated frame message" if frame == last else "frame messages out of order"
+                return f"{where}: frame {frame} after frame {last} ({kind})"
+        return None
+
+    def check(self, path: Path, message: LoggedMessage) -> None:
+        """:raises LogError: naming ``path`` and what is wrong with ``message`` coming next."""
+        problem = self.problem(message)
+        if problem:
+            raise LogError(
+                f"{path}: {problem}; the log was changed after it was written "
+                "(`slamfront inspect --validate` lists every problem)"
+            )
+
+
+def check_messages(path: Path, salvage: bool = False) -> None:
+    """Read every message of ``path`` once (decoding only ``/frames``) and stop at the first
+    sign that it was changed after it was written (:class:`OrderCheck`), before anything
+    is done with it: a message missing for one frame is seen only when the next message
+    of its channel arrives, after that frame would have been used.
+
+    :param salvage: a damaged log read as far as it can be: gaps (what the damage took) pass.
+    :raises LogError: a duplicated, reordered or missing message; or damage the summary
+        did not show (when not ``salvage``).
+    """
+    order = OrderCheck(numbered_log(path), gaps=salvage)
+    for message in read_messages_and_gaps(path, strict=not salvage):
+        if message is not None:
+            order.check(path, message)
+
+
+def numbered_log(path: Path) -> bool:
+    """``path`` was written by slamfront, whose writers number every channel's messages."""
+    return writer_library(path).startswith("slamfront")
 
 
 @dataclass
@@ -65,7 +215,10 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
     for topic in summary.topics:
         result.n_topics += 1
         kind = (topic.schema_encoding, topic.message_encoding)
-        if kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:
+        unreadable = channel_problem(topic)
+        if unreadable:
+            result.problems.append(unreadable)
+        elif kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:
             decoders[topic.topic] = foxglove[topic.schema_name]
         elif kind == ("jsonschema", "json"):
             try:
@@ -77,11 +230,17 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
                 f"{topic.topic}: schema {topic.schema_name!r} ({topic.schema_encoding}/{topic.message_encoding}) "
                 "is neither a Foxglove schema nor a registered slamfront one"
             )
+    order = OrderCheck(numbered_log(path))
     try:
         for message in read_messages(path):
             result.n_messages += 1
             decoder = decoders.get(message.topic)
-            if decoder is None or len(result.problems) >= max_problems:
+            if len(result.problems) >= max_problems:
+                continue
+            problem = order.problem(message)
+            if problem:
+                result.problems.append(problem)
+            if decoder is None:
                 continue
             problem = _check(message, decoder)
             if problem:

@@ -14,6 +14,7 @@ and fsyncs the file, so a power cut loses at most that many seconds of the run (
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import time
@@ -26,19 +27,48 @@ from typing import IO, Any
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from slamfront.errors import LogError
+from slamfront.errors import LogError, SlamfrontError
 from slamfront.mcaplog.reader import LoggedMessage
 from slamfront.messages import Message
+from slamfront.outputs import open_output
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 PROFILE = ""  # no ROS profile: Foxglove reads protobuf and jsonschema channels directly
 
 
+class _HashedStream:
+    """The log file, with a running SHA-256 and count of the bytes handed to it (the MCAP
+    writer only appends), so what an fsync put on disk can be vouched for without reading it back."""
+
+    def __init__(self, stream: IO[bytes]) -> None:
+        self._stream = stream
+        self.sha256 = hashlib.sha256()
+        self.size = 0
+
+    def write(self, data: bytes) -> int:
+        written = self._stream.write(data)
+        self.sha256.update(data)
+        self.size += len(data)
+        return written
+
+    def tell(self) -> int:
+        return self.size
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def fileno(self) -> int:
+        return self._stream.fileno()
+
+    def close(self) -> None:
+        self._stream.close()
+
+
 class RunLogWriter:
     """An open MCAP file that stage outputs and Foxglove messages are written to.
 
-    :param path: the ``.mcap`` file to create (overwritten if it exists).
+    :param path: the ``.mcap`` file to create (overwritten if it exists; never through a link).
     :param compression: ``zstd``, ``lz4`` or ``none`` (chunk compression).
     :param chunk_size: bytes per chunk (before compression).
     :param library: written into the MCAP header.
@@ -46,6 +76,8 @@ class RunLogWriter:
         when a chunk is full and at the end).
     :param critical: a context manager factory wrapped around every change to the file,
         so a signal cannot cut a record in two (see :class:`slamfront.interrupts.Interrupts`).
+    :param on_sync: called after each fsync (and after closing) with the size of the file
+        and the SHA-256 of its bytes (:meth:`slamfront.outputs.RunFolder.log_synced`).
     """
 
     def __init__(
@@ -56,13 +88,17 @@ class RunLogWriter:
         library: str = "slamfront",
         sync_seconds: float | None = None,
         critical: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext,
+        on_sync: Callable[[int, str], None] | None = None,
     ) -> None:
         self.path = Path(path)
         try:
-            self._stream: IO[bytes] = open(self.path, "wb")
+            self._stream = _HashedStream(open_output(self.path))
+        except SlamfrontError as exc:
+            raise LogError(str(exc)) from None
         except OSError as exc:
             raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
         self._critical = critical
+        self._on_sync = on_sync
         self._failed = False
         # data CRCs: readers can check every byte of the data section without opening a chunk
         self._writer = Writer(
@@ -225,6 +261,8 @@ class RunLogWriter:
         os.fsync(self._stream.fileno())
         self._last_sync = time.monotonic()
         self.n_syncs += 1
+        if self._on_sync is not None:
+            self._on_sync(self._stream.size, self._stream.sha256.hexdigest())
 
     def sync(self) -> None:
         """Put everything written so far on disk now (closes the current chunk)."""
@@ -250,6 +288,8 @@ class RunLogWriter:
                 os.fsync(self._stream.fileno())
             finally:
                 self._stream.close()
+        if self._on_sync is not None:  # the whole file: its hash without reading it back
+            self._on_sync(self._stream.size, self._stream.sha256.hexdigest())
 
     def __enter__(self) -> RunLogWriter:
         return self

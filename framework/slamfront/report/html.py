@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import base64
 import html
-import os
 import re
 from pathlib import Path
+
+from slamfront.outputs import write_atomically
 
 _MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".svg": "image/svg+xml"}
 
@@ -56,11 +57,7 @@ def write_html(markdown_path: Path, title: str | None = None) -> Path:
     text = markdown_path.read_text()
     heading = next((line[2:].strip() for line in text.splitlines() if line.startswith("# ")), markdown_path.stem)
     page = render_page(text, markdown_path.parent, title or heading)
-    target = markdown_path.with_suffix(".html")
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.write_text(page)
-    os.replace(tmp, target)
-    return target
+    return write_atomically(markdown_path.with_suffix(".html"), page)
 
 
 def render_page(markdown: str, folder: Path, title: str) -> str:

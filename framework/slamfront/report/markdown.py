@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from slamfront.evaluation.base import EvaluationReport
+from slamfront.outputs import write_atomically
 from slamfront.recipe import Recipe
 
 _HEADLINE_KEYS = (
@@ -67,6 +68,4 @@ def write_report(
             )
         lines.append("")
     lines += ["## Recipe", "", "```yaml", recipe.to_yaml().rstrip(), "```", ""]
-    path = out_dir / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return write_atomically(out_dir / "report.md", "\n".join(lines))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -12,10 +11,9 @@ import numpy as np
 
 def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
     """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
+    from slamfront.outputs import write_atomically
+
+    return write_atomically(path, json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
 
 
 def _finite(value: Any) -> Any:
