@@ -24,14 +24,31 @@ def read_image(path: Path, mode: Literal["rgb", "gray"] = "rgb") -> np.ndarray:
 
     16-bit images are scaled to 8 bits. :raises DataError: missing, empty or undecodable.
     """
-    data = _read_bytes(path)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    return decode_image(_read_bytes(path), str(path), mode)
+
+
+def decode_image(data: bytes, what: str, mode: Literal["rgb", "gray", "unchanged"] = "rgb") -> np.ndarray:
+    """Encoded image bytes (JPEG, PNG, ... anything OpenCV decodes) as pixels.
+
+    ``rgb``: uint8 ``(H, W, 3)`` in RGB order (16-bit scaled to 8); ``gray``: uint8
+    ``(H, W)``; ``unchanged``: as stored (a 16-bit depth PNG stays uint16, channels in
+    OpenCV's BGR order).
+
+    :param what: names the bytes for the error line (a file, or bag:topic:message).
+    :raises DataError: empty or undecodable.
+    """
+    if len(data) == 0:
+        raise DataError(f"{what}: empty image (0 bytes)")
+    flags = cv2.IMREAD_UNCHANGED
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
     if image is None or image.size == 0:
-        raise DataError(f"{path}: not a readable image (corrupt or unsupported format)")
+        raise DataError(f"{what}: not a readable image (corrupt or unsupported format)")
+    if mode == "unchanged":
+        return image
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     if image.dtype != np.uint8:
-        raise DataError(f"{path}: unsupported pixel type {image.dtype}")
+        raise DataError(f"{what}: unsupported pixel type {image.dtype}")
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     if mode == "gray":
