@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -44,14 +44,16 @@ class BagSpec:
     distortion: tuple[float, ...] = ()
     stamp_offset_s: float = 0.0
     """Added to every frame's timestamp (a bag's clock is the robot's)."""
+    topics: dict[str, str] = field(default_factory=lambda: dict(TOPICS))
+    """Topic names (``image`` and ``depth`` before the image_transport suffix)."""
 
     @property
     def image_topic(self) -> str:
-        return TOPICS["image"] + ("/compressed" if self.image in ("jpeg", "png") else "")
+        return self.topics["image"] + ("/compressed" if self.image in ("jpeg", "png") else "")
 
     @property
     def depth_topic(self) -> str:
-        return TOPICS["depth"] + ("/compressedDepth" if self.depth and self.depth.startswith("compressed") else "")
+        return self.topics["depth"] + ("/compressedDepth" if self.depth and self.depth.startswith("compressed") else "")
 
     def source_params(self, path: Path) -> dict[str, Any]:
         """The ``ros_bag`` params that read this bag."""
@@ -59,11 +61,11 @@ class BagSpec:
         if self.depth:
             params["depth_topic"] = self.depth_topic
         if self.camera_info:
-            params["camera_info_topic"] = TOPICS["info"]
+            params["camera_info_topic"] = self.topics["info"]
         if self.pose == "tf":
             params.update(tf_parent_frame="map", tf_child_frame="camera_optical")
         elif self.pose:
-            params["pose_topic"] = TOPICS["pose"]
+            params["pose_topic"] = self.topics["pose"]
         return params
 
 
@@ -135,7 +137,7 @@ class BagWriter:
             msg_depth = self._depth(stamp, frame.depth)
             self._write(spec.depth_topic, msg_depth.__msgtype__, msg_depth, stamp)
         if spec.camera_info and frame.camera is not None:
-            self._write(TOPICS["info"], "sensor_msgs/msg/CameraInfo", self._info(stamp, frame), stamp)
+            self._write(spec.topics["info"], "sensor_msgs/msg/CameraInfo", self._info(stamp, frame), stamp)
         if spec.pose and frame.pose is not None:
             self._pose(stamp, frame.pose)
 
@@ -222,7 +224,7 @@ class BagWriter:
         else:
             self._tf(stamp, pose)
             return
-        self._write(TOPICS["pose"], message.__msgtype__, message, stamp)
+        self._write(self.spec.topics["pose"], message.__msgtype__, message, stamp)
 
     def _transform(self, stamp: int, parent: str, child: str, pose: np.ndarray) -> Any:
         t = self.types

@@ -23,18 +23,26 @@ def test_each_image_gets_its_nearest_partner_once_both_sides_are_seen() -> None:
     assert [(p.item, p.partners["depth"], p.complete) for p in decided] == [("image 133", None, False)]
 
 
-def test_partners_may_arrive_before_or_after_and_out_of_order() -> None:
+def test_partners_may_arrive_before_or_after_the_image() -> None:
     pairing = StreamPairing(["depth", "pose"], tolerance_ns=5 * MS)
     decided = []
     decided += pairing.add_partner("pose", 48 * MS, 48 * MS, "pose 48")
     decided += pairing.add_partner("pose", 52 * MS, 52 * MS, "pose 52")  # ties go to the earlier one
     decided += pairing.add_partner("pose", 60 * MS, 60 * MS, "pose 60")
     decided += pairing.add_primary(50 * MS, 61 * MS, "image 50")  # recorded late (driver latency)
-    decided += pairing.add_partner("depth", 53 * MS, 62 * MS, "depth 53")
-    decided += pairing.add_partner("depth", 51 * MS, 63 * MS, "depth 51")  # out of order within its stream
-    decided += pairing.add_partner("depth", 70 * MS, 70 * MS, "depth 70")
+    decided += pairing.add_partner("depth", 47 * MS, 62 * MS, "depth 47")
+    assert decided == []  # a depth stamped 50-53 ms may still come
+    decided += pairing.add_partner("depth", 51 * MS, 63 * MS, "depth 51")  # nearer than anything later can be
     assert len(decided) == 1
     assert decided[0].partners == {"depth": (51 * MS, "depth 51"), "pose": (48 * MS, "pose 48")}
+
+
+def test_a_partner_with_the_very_stamp_decides_at_once() -> None:
+    pairing = StreamPairing(["depth", "pose"], tolerance_ns=20 * MS)
+    pairing.add_primary(100 * MS, 100 * MS, "image")
+    pairing.add_partner("depth", 100 * MS, 101 * MS, "depth")
+    decided = pairing.add_partner("pose", 100 * MS, 102 * MS, "pose")
+    assert [p.item for p in decided] == ["image"] and len(pairing) == 0
 
 
 def test_a_partner_stream_that_stops_does_not_hold_images_forever() -> None:

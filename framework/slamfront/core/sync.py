@@ -3,9 +3,10 @@
 A recording interleaves topics in the order messages arrived. Each *primary* message
 (an image) needs, from every *partner* stream (depth, pose), the message nearest to it
 in time within a tolerance; a primary without one is dropped. :class:`StreamPairing`
-decides a primary as soon as it can be sure: when every partner stream has shown a
-message stamped after ``stamp + tolerance`` (a later one cannot be nearer, since a
-stream's own stamps increase), or has ended. Messages that can no longer be anyone's
+decides a primary as soon as it can be sure (a stream's own stamps increase, so a later
+message cannot be nearer than one already seen as far after the primary): at once when a
+partner has its very stamp, else when every partner stream has gone past it far enough,
+or has ended. Messages that can no longer be anyone's
 partner are forgotten, so memory holds only the few messages around the present.
 
 A primary still undecided ``patience_ns`` of arrival time after it came (a partner
@@ -40,8 +41,15 @@ class PartnerStream:
         self.latest = stamp if self.latest is None else max(self.latest, stamp)
 
     def settled(self, stamp: int, tolerance: int) -> bool:
-        """No later message can be nearer to ``stamp`` than what is here."""
-        return self.ended or (self.latest is not None and self.latest > stamp + tolerance)
+        """No later message can be nearer to ``stamp`` than what is here: the stream has
+        ended, or shown a message at least as far after ``stamp`` as the nearest one so far
+        is from it (at once for a partner with the very same stamp), or past the tolerance."""
+        if self.ended:
+            return True
+        if self.latest is None:
+            return False
+        best = self.nearest(stamp, tolerance)
+        return self.latest > stamp + tolerance or (best is not None and self.latest >= stamp + abs(best[0] - stamp))
 
     def nearest(self, stamp: int, tolerance: int) -> tuple[int, Any] | None:
         """(stamp, item) nearest to ``stamp`` within ``tolerance`` (the earlier one on a tie)."""
