@@ -65,6 +65,9 @@ def test_a_bag_of_the_demo_stream_gives_the_demo_results(
     runs: dict[str, Any], bag: str, recall_within: float, ate_ratio: float
 ) -> None:
     synthetic, recorded = runs["synthetic"].metrics, runs[bag].metrics
+    print(f"\n{bag}: recall@100%P {recorded['recall_at_100p']:.4f} (synthetic {synthetic['recall_at_100p']:.4f}), "
+          f"ATE after {recorded['ate_rmse_after_m']:.4f} m (synthetic {synthetic['ate_rmse_after_m']:.4f} m, "
+          f"ratio {recorded['ate_rmse_after_m'] / synthetic['ate_rmse_after_m']:.3f})")
     assert recorded["n_frames"] == 400 and recorded["n_frames_dropped"] == 0 and recorded["n_images_read"] == 400
     assert abs(recorded["recall_at_100p"] - synthetic["recall_at_100p"]) <= recall_within, (
         recorded["recall_at_100p"], synthetic["recall_at_100p"])

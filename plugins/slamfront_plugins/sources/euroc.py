@@ -15,7 +15,7 @@ span are dropped and counted. Images are undistorted (radial-tangential or equid
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from slamfront import Camera, DataError, Frame, PluginConfig, Source
+from slamfront import Camera, DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.core.geometry import pose_from_quaternion
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath, path_inside
@@ -150,6 +150,10 @@ class Euroc(Source):
         else:
             keep = list(range(len(stamps)))
         return selected([_Entry(int(stamps[i]), images[i], poses[i]) for i in keep], c)
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        """Read the layout (lists, calibration, ground truth) before the first frame."""
+        self._entries  # noqa: B018 (cached: reads and validates the sequence's files)
 
     def __len__(self) -> int:
         return len(self._entries)

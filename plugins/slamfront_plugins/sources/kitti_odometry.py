@@ -14,7 +14,7 @@ camera 0's; for another camera the pose is moved by that camera's offset in ``ca
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from functools import cached_property
 from pathlib import Path
 from typing import Literal
@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from slamfront import Camera, DataError, Frame, Source
+from slamfront import Camera, DataError, Frame, Plugin, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath
 from slamfront.formats.poses import numbered_fields, read_kitti
@@ -105,6 +105,11 @@ class KittiOdometry(Source):
     @cached_property
     def _chosen(self) -> list[int]:
         return selected(range(len(self._all[0])), self.config)
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        """Read the layout (images, times, calibration, poses) before the first frame."""
+        self._all  # noqa: B018 (cached: reads and validates the sequence's files)
+        self._projection  # noqa: B018
 
     def __len__(self) -> int:
         return len(self._chosen)

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from typing import TypeVar
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from slamfront import Camera, PluginConfig
 from slamfront.core.loops import LoopGroundTruth, revisits_from_positions
@@ -28,6 +28,20 @@ class RecordingConfig(PluginConfig):
         None, gt=0, description="stream loop truth: the camera must have gone this far away in between "
         "(default twice revisit_radius_m)"
     )
+
+
+class TimedRecordingConfig(RecordingConfig):
+    """A recording with its own clock: a time window too (``start`` and ``step`` then count from it)."""
+
+    start_time_s: float | None = Field(None, ge=0, description="skip the recording's first seconds (start and "
+                                       "step then count frames from there)")
+    end_time_s: float | None = Field(None, gt=0, description="stop this many seconds after the recording's start")
+
+    @model_validator(mode="after")
+    def _time_window(self) -> TimedRecordingConfig:
+        if self.start_time_s is not None and self.end_time_s is not None and self.end_time_s <= self.start_time_s:
+            raise ValueError("end_time_s must be after start_time_s")
+        return self
 
 
 def selected(items: Sequence[T], config: RecordingConfig) -> list[T]:

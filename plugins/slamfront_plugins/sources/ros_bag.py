@@ -30,7 +30,7 @@ from slamfront.data import DataPath
 from slamfront.formats import ros
 from slamfront.suggest import did_you_mean
 from slamfront.undistort import Undistortion
-from slamfront_plugins.sources.recording import RecordingConfig, given_camera, n_selected, revisit_truth
+from slamfront_plugins.sources.recording import TimedRecordingConfig, given_camera, n_selected, revisit_truth
 from slamfront_plugins.sources.rgbd import Intrinsics, KnownCamera
 
 logger = logging.getLogger(__name__)
@@ -64,7 +64,7 @@ class RosBag(Source):
 
     name = "ros_bag"
 
-    class Config(RecordingConfig):
+    class Config(TimedRecordingConfig):
         path: DataPath = Field(description="the bag: a ROS 1 .bag, a rosbag2 folder, or a .mcap/.db3 file")
         image_topic: str = Field(description="sensor_msgs/Image or CompressedImage topic: one frame per message")
         depth_topic: str | None = Field(None, description="depth registered to the image (Image 16UC1/32FC1 or "
@@ -89,18 +89,12 @@ class RosBag(Source):
         timestamps: Literal["header", "receive"] = Field(
             "header", description="frame times from the messages' header stamps, or from when the bag received them"
         )
-        start_time_s: float | None = Field(None, ge=0, description="skip the bag's first seconds (start and step "
-                                           "then count image messages from there)")
-        end_time_s: float | None = Field(None, gt=0, description="stop this many seconds after the bag's start")
-
         @model_validator(mode="after")
         def _one_ground_truth(self) -> RosBag.Config:
             if self.pose_topic is not None and (self.tf_parent_frame or self.tf_child_frame):
                 raise ValueError("give either pose_topic or tf_parent_frame/tf_child_frame, not both")
             if bool(self.tf_parent_frame) != bool(self.tf_child_frame):
                 raise ValueError("ground truth from /tf needs both tf_parent_frame and tf_child_frame")
-            if self.start_time_s is not None and self.end_time_s is not None and self.end_time_s <= self.start_time_s:
-                raise ValueError("end_time_s must be after start_time_s")
             return self
 
     config: Config

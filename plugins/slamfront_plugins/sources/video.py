@@ -10,16 +10,17 @@ its clock.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import os
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field
 
-from slamfront import Camera, DataError, Frame, PluginConfig, Source
+from slamfront import Camera, DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.data import DataPath
-from slamfront_plugins.sources.recording import RecordingConfig, given_camera, n_selected
+from slamfront_plugins.sources.recording import TimedRecordingConfig, given_camera, n_selected
 from slamfront_plugins.sources.rgbd import Intrinsics, KnownCamera
 
 
@@ -31,20 +32,12 @@ class Video(Source):
 
     name = "video"
 
-    class Config(RecordingConfig):
+    class Config(TimedRecordingConfig):
         path: DataPath = Field(description="the video file (relative: under the data root)")
         fps: float | None = Field(None, gt=0, description="keep at most this many frames per second of video")
-        start_time_s: float | None = Field(None, ge=0, description="skip the video's first seconds")
-        end_time_s: float | None = Field(None, gt=0, description="stop at this time of the video")
         max_width: int | None = Field(None, ge=16, description="downscale wider frames to this width")
         grey: bool = Field(False, description="give grey frames instead of colour")
         camera: Intrinsics | KnownCamera | None = Field(None, description="intrinsics at the video's full size")
-
-        @model_validator(mode="after")
-        def _time_range(self) -> Video.Config:
-            if self.start_time_s is not None and self.end_time_s is not None and self.end_time_s <= self.start_time_s:
-                raise ValueError("end_time_s must be after start_time_s")
-            return self
 
     config: Config
 
@@ -56,10 +49,17 @@ class Video(Source):
         path = Path(self.config.path)
         if not path.is_file():
             raise DataError(f"{path}: no such video file")
+        # FFmpeg writes its own complaints straight to stderr ("moov atom not found"); the
+        # source says what failed in one line instead (set OPENCV_FFMPEG_LOGLEVEL to see them)
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
         capture = cv2.VideoCapture(str(path))
         if not capture.isOpened():
             raise DataError(f"{path}: not a video OpenCV (FFmpeg) can decode")
         return capture
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        """Open the file before the first frame: a file that is not a video is one line, before the log."""
+        self._open().release()
 
     def __len__(self) -> int:
         capture = self._open()
