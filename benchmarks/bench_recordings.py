@@ -196,11 +196,11 @@ def main() -> None:
         f"converts them: its own work per frame (image view, depth to float32 metres, pose matrix) is "
         f"**{own_ms:.2f} ms** (median of 200, in this process), against "
         f"{1000 * statistics.median(r['seconds'] / r['frames'] for r in runs['rosbags']):.2f} ms per frame "
-        "for reading and deserialising. Both passes are dominated by moving ~1.5 MB per frame through memory, "
-        "and by how the allocator serves buffers that large: the source drops each message as soon as its "
-        "frame is decided, which is why it can come out faster than a loop holding the previous message. Read "
-        "the ratio as \"no slower than reading the bag\", not as a speed-up: passes repeated inside one "
-        "process over a smaller bag (0.2 GB, a warm allocator) put the source at about 2x the plain loop.",
+        "for reading and deserialising. Both passes are dominated by copying ~1.5 MB per frame out of the MCAP "
+        "chunks, and so by how the allocator serves buffers that large: profiled (cProfile) on a 0.4 GB bag, "
+        "the plain loop spends about half its time in those copies (page faults on memory the allocator had "
+        "given back to the system), which the source's pattern of allocations mostly avoids. Read a ratio under "
+        "1 as \"no slower than reading the bag\", not as a speed-up.",
         "## Memory of the ros_bag pass (resident set)\n\n" + table(
             ["round", f"after {START_FRAMES} frames MB", "after the last MB", "growth %"], memory_rows),
         f"Largest growth from start to end: **{max(growth):.1f} %** (target: flat within 10 %): the source holds "
