@@ -151,6 +151,12 @@ def test_images_without_depth_or_pose_in_tolerance_are_dropped_and_counted(
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["n_frames"] == len(frames) - 3 and metrics["n_frames_dropped"] == 3
     assert metrics["n_frames_dropped_no_depth"] == 2 and metrics["n_frames_dropped_no_pose"] == 1
+    # the ground truth of the frames given, stamped with their header times
+    from slamfront.formats.poses import read_tum
+
+    truth = read_tum(tmp_path / "run" / "groundtruth.tum")
+    assert np.allclose(truth.timestamps, [f.timestamp for f in got], atol=1e-9)
+    assert np.allclose(truth.poses, [f.pose for f in got], atol=1e-9)
 
 
 # --- bad input: one line, exit 2 ------------------------------------------------------------

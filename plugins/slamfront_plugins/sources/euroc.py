@@ -44,9 +44,12 @@ class _Entry:
 
 
 class Euroc(Source):
-    """A EuRoC MAV sequence (ASL folder layout): one camera's grey images with nanosecond
-    timestamps, its intrinsics and distortion from ``sensor.yaml``, and the ground-truth
-    camera pose from ``state_groundtruth_estimate0`` composed with the camera's extrinsics."""
+    """A EuRoC MAV sequence (ASL layout): grey images, calibration and true camera poses.
+
+    One camera's images with their nanosecond timestamps, its intrinsics and distortion
+    from ``sensor.yaml`` (images are undistorted), and the ground-truth camera pose from
+    ``state_groundtruth_estimate0`` composed with the camera's extrinsics ``T_BS``.
+    """
 
     name = "euroc"
 

@@ -33,8 +33,11 @@ CameraFolder = Literal["image_0", "image_1", "image_2", "image_3"]
 
 
 class KittiOdometry(Source):
-    """A KITTI odometry sequence: one camera's rectified images, ``times.txt`` timestamps,
-    intrinsics from ``calib.txt`` and, for sequences 00-10, the ground-truth poses."""
+    """A KITTI odometry sequence: rectified images, times, calibration and true poses.
+
+    One camera's images, ``times.txt`` timestamps, intrinsics from ``calib.txt`` and, for
+    sequences 00-10, the ground-truth poses moved to the chosen camera.
+    """
 
     name = "kitti_odometry"
 

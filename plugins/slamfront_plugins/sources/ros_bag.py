@@ -47,10 +47,10 @@ class RosBagError(DataError):
 
 
 class RosBag(Source):
-    """Frames from a ROS 1 ``.bag`` or a ROS 2 bag (MCAP or sqlite3; a rosbag2 folder with
-    ``metadata.yaml``, or a single ``.mcap``/``.db3`` file), read without ROS.
+    """Frames from a ROS 1 or ROS 2 bag (MCAP or sqlite3 storage), read without ROS.
 
-    One image topic gives the frames (``sensor_msgs/Image`` in any common encoding, or
+    A ROS 1 ``.bag``, a rosbag2 folder (with ``metadata.yaml``), or a single
+    ``.mcap``/``.db3`` file. One image topic gives the frames (``sensor_msgs/Image`` in any common encoding, or
     ``CompressedImage`` JPEG/PNG); depth (16UC1 millimetres, 32FC1 metres, or
     ``compressedDepth``) and a ground-truth pose (``PoseStamped``,
     ``PoseWithCovarianceStamped``, ``Odometry``, ``TransformStamped``, or the ``/tf``

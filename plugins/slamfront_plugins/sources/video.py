@@ -25,10 +25,12 @@ from slamfront_plugins.sources.rgbd import Intrinsics, KnownCamera
 
 
 class Video(Source):
-    """Frames of a video file (anything OpenCV's FFmpeg decodes), timestamped by the
-    container, subsampled by ``step`` or to at most ``fps`` frames per second, optionally
-    cut to a time range and downscaled; intrinsics from ``camera`` (given for the video's
-    full resolution, scaled with the frames)."""
+    """Frames of a video file (anything OpenCV's FFmpeg decodes) with the container's times.
+
+    Subsampled by ``step`` or to at most ``fps`` frames per second, optionally cut to a
+    time range and downscaled; intrinsics from ``camera`` (given for the video's full
+    resolution, scaled with the frames).
+    """
 
     name = "video"
 
