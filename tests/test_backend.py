@@ -14,7 +14,7 @@ from slamfront import Camera, DataError, Frame, PluginError, StageInputs
 from slamfront.core import geometry
 from slamfront.core.alignment import ate_rmse
 from slamfront.formats.poses import Trajectory as PoseFile
-from slamfront.formats.poses import write_tum
+from slamfront.formats.poses import read_tum, write_tum
 from slamfront.imageio import read_depth, read_image
 from slamfront.local_features import LocalFeatureExtractor
 from slamfront.matching import Matcher, resolve_max_distance
@@ -256,6 +256,10 @@ def test_synthetic_slam_run_reduces_ate_and_logs_for_foxglove(cli, tmp_path: Pat
     again = json.loads((tmp_path / "again" / "metrics.json").read_text())
     assert again["ate_rmse_after_m"] == pytest.approx(metrics["ate_rmse_after_m"], rel=0.05)
     assert again["ground_truth"] == "from the log"
+    # ... stamped with the frames' own times (not vertex ids), as the run's own TUM files are
+    gt, optimised = read_tum(out / "groundtruth.tum"), read_tum(out / "optimised.tum")
+    assert np.array_equal(read_tum(tmp_path / "again" / "trajectory.tum").timestamps, optimised.timestamps)
+    assert np.isin(optimised.timestamps, gt.timestamps).all() and len(optimised) == metrics["n_frames"]
     # the back end reads pixels (PnP on depth): with exact pixels logged, a replay re-runs it bit for bit
     replay = replay_log(result.log_path, tmp_path / "replay", from_kind="backend", progress=False)
     assert summarize(replay.log_path).metadata["replay"]["recorded_stages"] == "descriptor,loop_detector"

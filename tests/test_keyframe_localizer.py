@@ -84,18 +84,24 @@ def test_run_outputs_metrics_log_report_and_trajectories(kidnapped: RunResult) -
     assert summary.topic("/localizer/pose").count == metrics["n_frames_localized"]  # foxglove.PoseInFrame
     assert summary.topic("/localizer/keyframe_added").count == metrics["n_keyframes"]
     assert summary.topic("/localizer/keyframes").count == 1  # foxglove.PosesInFrame of the map
-    # the TUM files the evaluation writes give the same ATE and RPE through `eval traj`'s functions
+    # the TUM files the run writes give the same ATE (frames' own timestamps) and RPE (the
+    # shuffled drive's route-order files) through `eval traj`'s functions
     from slamfront.core.trajectory import evaluate_trajectories
 
-    gt = read_tum(kidnapped.out_dir / "groundtruth_tum.txt")
     keys = ("ate_rmse_m", "rpe_rmse_m", "rpe_all_intervals_rmse_m")
-    for name, theirs in (("estimated_tum.txt", keys),
-                         ("estimated_pnp_tum.txt", ("ate_rmse_pnp_m", "rpe_rmse_pnp_m", "rpe_all_intervals_rmse_pnp_m"))):
-        est = read_tum(kidnapped.out_dir / name)
-        again = evaluate_trajectories(gt.timestamps, gt.poses, est.timestamps, est.poses, 1e-6,
-                                      all_intervals=True).metrics()
-        for key, mine in zip(keys, theirs):
-            assert again[key] == pytest.approx(metrics[mine], abs=1e-9), (name, key)
+    pnp = ("ate_rmse_pnp_m", "rpe_rmse_pnp_m", "rpe_all_intervals_rmse_pnp_m")
+    out = kidnapped.out_dir
+    for truth, estimates in (("groundtruth.tum", ("estimated.tum", "estimated_pnp.tum")),
+                             ("groundtruth_route.tum", ("estimated_route.tum", "estimated_pnp_route.tum"))):
+        gt = read_tum(out / truth)
+        for name, theirs in zip(estimates, (keys, pnp)):
+            est = read_tum(out / name)
+            again = evaluate_trajectories(gt.timestamps, gt.poses, est.timestamps, est.poses, 1e-6,
+                                          all_intervals=True).metrics()
+            checked = keys if "route" in name else keys[:1]  # RPE is scored along the route
+            for key, mine in zip(keys, theirs):
+                if key in checked:
+                    assert again[key] == pytest.approx(metrics[mine], abs=1e-9), (name, key)
 
 
 def test_localization_and_its_scores_do_not_depend_on_the_order_frames_come_in(tmp_path: Path) -> None:

@@ -13,15 +13,25 @@ from slamfront.recipe import Recipe, build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 from tests.helpers import write_tum_layout
+from tests.recordings import BagSpec, write_bag
 
 RECIPES = sorted(recipes_dir().glob("*.yaml"))
 
 
+BAGS = {
+    "realsense_bag": BagSpec(ros=1, image="rgb8", depth="16UC1", pose=None),
+    "mono_odometry_bag": BagSpec(ros=1, image="jpeg", depth=None, pose="Odometry", topics={
+        "image": "/camera/image_raw", "info": "/camera/camera_info", "pose": "/odom", "depth": "/unused"}),
+}
+"""The bag each shipped ros_bag recipe is smoke-run on: the topics and encodings it names."""
+
+
 def data_root_for(recipe: Recipe, tmp_path: Path, shared_data: Path) -> Path:
-    """The shared data root, or, for a recipe on a TUM sequence (not available here), a copy
-    of it (by links) with a TUM-layout sequence of synthetic frames where the recipe looks."""
+    """The shared data root, or, for a recipe on a TUM sequence or a bag (not available here), a
+    copy of it (by links) with synthetic frames where the recipe looks (a TUM-layout sequence,
+    or a bag with the recipe's topics)."""
     spec = recipe.source.params.get("main", recipe.source.model_dump())
-    if spec["plugin"] != "tum_rgbd":
+    if spec["plugin"] not in ("tum_rgbd", "ros_bag"):
         return shared_data
     root = tmp_path / "data"
     root.mkdir()
@@ -29,6 +39,12 @@ def data_root_for(recipe: Recipe, tmp_path: Path, shared_data: Path) -> Path:
         (root / entry.name).symlink_to(entry)
     world = SyntheticWorld(SyntheticWorld.Config(mode="stream", laps=1, frames_per_traversal=12, image_width=160,
                                                  image_height=120))
+    if spec["plugin"] == "ros_bag":
+        assert recipe.name in BAGS, f"add the bag {recipe.name} is smoke-run on to BAGS"
+        bag = root / spec["params"]["path"]
+        bag.parent.mkdir(parents=True)
+        write_bag(bag, world.frames(), BAGS[recipe.name])
+        return root
     write_tum_layout(root / spec["params"]["root"], list(world.frames()))
     return root
 

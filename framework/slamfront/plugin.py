@@ -85,6 +85,10 @@ class Source(Plugin):
         """Which reported matches count as correct, for loop-detection evaluation."""
         return None
 
+    def statistics(self) -> dict[str, float | int]:
+        """Counters for ``metrics.json`` (e.g. frames a recording dropped), read after the last frame."""
+        return {}
+
     def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
         """The same ground truth with another tolerance zeta (frames either side).
 

@@ -51,7 +51,7 @@ from slamfront.mcaplog.topics import (
     statistics_topic,
     topic_for,
 )
-from slamfront.mcaplog.writer import RunLogWriter
+from slamfront.mcaplog.writer import LogSink, RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.outputs import claim_run_folder
 from slamfront.plugin import Stage, StageInputs
@@ -59,6 +59,7 @@ from slamfront.recipe import Pipeline
 from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
 from slamfront.report.metrics_file import write_json_atomically
+from slamfront.report.trajectory_files import write_trajectory_files
 from slamfront.resources import layout_for
 
 __all__ = [
@@ -207,6 +208,7 @@ def run_pipeline(
     out_dir: Path,
     progress: bool | None = None,
     max_frames: int | None = None,
+    sinks: Sequence[LogSink] = (),
 ) -> RunResult:
     """Run a built pipeline and write ``run.mcap``, ``metrics.json`` and ``report.md``.
 
@@ -215,10 +217,12 @@ def run_pipeline(
     :param progress: show a progress bar (None: only on a terminal).
     :param max_frames: stop after this many frames (smoke tests); evaluation then
         scores only the queries that were reached.
+    :param sinks: watchers of the log's channels and messages as they are written
+        (``--live``: :class:`slamfront.mcaplog.live.LiveView`).
     :raises SlamfrontError: bad data met mid-run (the log is finalised first).
     """
     feed = SourceFeed(pipeline.source, pipeline.recipe.log)
-    return execute_run(pipeline, feed, origin, out_dir, progress, max_frames)
+    return execute_run(pipeline, feed, origin, out_dir, progress, max_frames, sinks=sinks)
 
 
 def execute_run(
@@ -230,6 +234,7 @@ def execute_run(
     max_frames: int | None = None,
     metadata: dict[str, dict[str, str]] | None = None,
     input_files: Sequence[Path] = (),
+    sinks: Sequence[LogSink] = (),
 ) -> RunResult:
     """Drive ``pipeline``'s stages with the frames of ``feed``; stages of the kinds in
     ``feed.recorded_kinds`` are not called, their logged messages are used instead.
@@ -240,6 +245,7 @@ def execute_run(
 
     :param metadata: extra MCAP metadata records (name -> key/values).
     :param input_files: files the run reads (a replayed log): never overwritten or removed.
+    :param sinks: watchers of everything the log gets (``--live``).
     """
     recipe = pipeline.recipe
     folder = claim_run_folder(out_dir, input_files)
@@ -271,6 +277,8 @@ def execute_run(
                 ) as log,
             ):
                 log_opened = True
+                for sink in sinks:
+                    log.add_sink(sink)
                 with clock:
                     _record_provenance(log, pipeline, origin, metadata or {})
                     log.sync()  # recipe and versions are on disk before the first frame: even a SIGKILL keeps them
@@ -335,6 +343,8 @@ def execute_run(
                         with clock:
                             capture.flush(log, last_stamp)
                             _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                    # the source's own counters (frames a recording dropped), first, as the stages' are
+                    statistics["source"] = dict(feed.source.statistics())
                     for stage in stages:
                         where = f"in the {stage.kind} plugin {stage.name!r} giving its statistics"
                         values = (
@@ -387,6 +397,8 @@ def execute_run(
             metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
             sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
             metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
+            # the run's TUM trajectories (groundtruth, odometry, optimised, estimated): written here, in one place
+            write_trajectory_files(out_dir, {name: t for s in sections for name, t in s.trajectories.items()})
             report_path = write_report(out_dir, recipe, origin, metrics, sections)
             html_path = write_html(report_path)
         phases["report"] = time.perf_counter() - tick

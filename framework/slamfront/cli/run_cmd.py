@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -38,6 +40,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                         help="register an extra plugin module (importable name; repeatable)")
     parser.add_argument("--max-frames", type=frame_count, metavar="N", help="stop after N frames (a quick smoke run)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--live", nargs="?", type=int, const=8765, metavar="PORT",
+        help="also serve the run to Foxglove as it happens (Foxglove WebSocket, default port 8765; "
+        "in Foxglove: Open connection -> Foxglove WebSocket -> ws://localhost:PORT); the log is still written",
+    )
+    parser.add_argument("--live-host", default="127.0.0.1", metavar="HOST",
+                        help="address --live listens on (default 127.0.0.1: this machine only; 0.0.0.0: all)")
+    parser.add_argument("--live-wait", type=float, default=0.0, metavar="SECONDS",
+                        help="with --live, wait up to SECONDS for Foxglove to connect before the first frame")
     parser.set_defaults(handler=run)
 
 
@@ -50,9 +61,18 @@ def run(args: argparse.Namespace) -> int:
         recipe = recipe.model_copy(update={"plugin_modules": [*recipe.plugin_modules, *args.plugin_module]})
     pipeline = build_pipeline(recipe, str(path))
     out_dir = args.out or Path("logs") / safe_name(recipe.name)
-    result = run_pipeline(
-        pipeline, str(path), out_dir, progress=False if args.quiet else None, max_frames=args.max_frames
-    )
+    with contextlib.ExitStack() as stack:
+        sinks = []
+        if args.live is not None:
+            from slamfront.mcaplog.live import LiveView
+
+            live = stack.enter_context(LiveView(args.live, args.live_host, args.live_wait))
+            print(f"live: {live.url} (Foxglove: Open connection -> Foxglove WebSocket)", file=sys.stderr, flush=True)
+            sinks.append(live)
+        result = run_pipeline(
+            pipeline, str(path), out_dir, progress=False if args.quiet else None, max_frames=args.max_frames,
+            sinks=sinks,
+        )
     print_outcome(result)
     return 0
 

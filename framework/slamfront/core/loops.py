@@ -300,3 +300,48 @@ def recall_at_k(
         position = np.arange(len(ok)) - np.repeat(starts, lengths)
         first_hit[asked] = np.minimum.reduceat(np.where(ok, position, np.iinfo(np.int64).max), starts)
     return {k: float(np.sum(first_hit < k) / n_positive) if n_positive else 0.0 for k in ks}
+
+
+def revisits_from_positions(
+    positions: np.ndarray, radius_m: float, leave_m: float | None = None
+) -> LoopGroundTruth:
+    """Stream loop ground truth from where the camera was: a frame revisits every earlier
+    frame it is within ``radius_m`` of, provided the camera *left* that place in between
+    (went farther than ``leave_m`` from it) - a return, not standing still.
+
+    This is the synthetic world's stream truth (a revisit radius, counted only after
+    leaving) defined on positions alone, so any source with ground-truth poses has it.
+
+    :param positions: (N, 3) camera positions of frames 0..N-1, in metres.
+    :param radius_m: how close a return must come to count as a revisit.
+    :param leave_m: how far the camera must go between the two visits (default
+        ``2 * radius_m``).
+    :returns: every frame as a query; row i lists the frames i revisits (maybe none).
+    """
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(positions, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise CoreError(f"positions must be (N, 3), got {points.shape}")
+    if radius_m <= 0:
+        raise CoreError(f"the revisit radius must be positive, got {radius_m}")
+    leave = 2.0 * radius_m if leave_m is None else float(leave_m)
+    n = len(points)
+    # left[j]: the first frame after j farther than `leave` from frame j (n: it never left)
+    left = np.full(n, n, dtype=np.int64)
+    for j in range(n):
+        start, width = j + 1, 64
+        while start < n:
+            far = np.flatnonzero(np.linalg.norm(points[start : start + width] - points[j], axis=1) > leave)
+            if far.size:
+                left[j] = start + far[0]
+                break
+            start += width
+            width *= 2
+    rows: list[np.ndarray] = []
+    tree = cKDTree(points) if n else None
+    for i in range(n):
+        near = np.asarray(tree.query_ball_point(points[i], radius_m), dtype=np.int64) if tree is not None else []
+        near = near[near < i] if len(near) else np.empty(0, np.int64)
+        rows.append(near[left[near] < i])
+    return LoopGroundTruth.from_rows(np.arange(n, dtype=np.int64), rows)

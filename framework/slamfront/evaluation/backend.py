@@ -1,14 +1,16 @@
 """Back-end evaluation: ATE and RPE (Sturm et al. 2012, :mod:`slamfront.core.trajectory`)
 of the trajectory before and after pose-graph optimisation, its drift (the position
 error of the last pose relative to the first, per distance travelled), loop closures the
-back end added (and how many of them were true), and a plot."""
+back end added (and how many of them were true), and a plot. The two trajectories go to
+``odometry.tum`` and ``optimised.tum`` (the frames' own timestamps): ``evo_ape tum
+groundtruth.tum optimised.tum -a`` gives ``ate_rmse_after_m``."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from slamfront.core.trajectory import end_drift, evaluate_poses
-from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
 from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
 from slamfront.posegraph import report
 
@@ -28,13 +30,16 @@ class BackendEvaluation(Evaluation):
 
     def __init__(self) -> None:
         self._truth: dict[int, np.ndarray] = {}
+        self._stamps: dict[int, float] = {}
         self._trajectories: dict[str, Trajectory] = {}
         self._graph: PoseGraphState | None = None
         self._constraints: list[LoopConstraint] = []
 
     def observe(self, kind: str, message: Message) -> None:
-        if isinstance(message, FrameInfo) and message.pose is not None:
-            self._truth[message.frame] = np.asarray(message.pose, dtype=np.float64)
+        if isinstance(message, FrameInfo):
+            self._stamps[message.frame] = float(message.timestamp)
+            if message.pose is not None:
+                self._truth[message.frame] = np.asarray(message.pose, dtype=np.float64)
         elif isinstance(message, Trajectory) and message.label in self.labels:
             self._trajectories[message.label] = message
         elif isinstance(message, PoseGraphState):
@@ -91,5 +96,25 @@ class BackendEvaluation(Evaluation):
             k: context.statistics.get(f"backend.{k}", context.statistics[k])
             for k in _SOLVER_KEYS if k in context.statistics
         }
-        markdown = report.metrics_table({**shown, **metrics}) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
-        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
+        trajectories = self._stamped()
+        note = ""
+        if trajectories:
+            note = (f"Trajectories in TUM format (the frames' timestamps): {', '.join(f'`{n}.tum`' for n in trajectories)}"
+                    ". `evo_ape tum groundtruth.tum optimised.tum -a` (rigid SE(3) alignment, translation part) gives "
+                    "`ate_rmse_after_m`, with `odometry.tum` `ate_rmse_before_m`.\n\n")
+        markdown = (report.metrics_table({**shown, **metrics}) + "\n\n" + note
+                    + "".join(f"![{f}]({f})\n\n" for f in figures))
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures,
+                                trajectories=trajectories)
+
+    def _stamped(self) -> dict[str, PoseFile]:
+        """The back end's trajectories stamped with their frames' timestamps, in time order."""
+        stamped = {}
+        for label, trajectory in self._trajectories.items():
+            frames = [int(f) for f in trajectory.frames]
+            if not frames or not all(f in self._stamps for f in frames):
+                continue
+            stamps = np.array([self._stamps[f] for f in frames], dtype=np.float64)
+            order = np.argsort(stamps, kind="stable")
+            stamped[label] = PoseFile(stamps[order], np.asarray(trajectory.poses, dtype=np.float64)[order])
+        return stamped

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from slamfront.formats.poses import Trajectory as PoseFile
 from slamfront.messages import Message
 from slamfront.plugin import Source
 from slamfront.recipe import EvalOptions
@@ -34,6 +35,10 @@ class EvaluationReport:
     markdown: str = ""
     figures: list[str] = field(default_factory=list)
     """PNG file names (relative to the run folder) the section shows."""
+    trajectories: dict[str, PoseFile] = field(default_factory=dict)
+    """Trajectories the runtime writes into the run folder as ``<name>.tum`` (TUM format,
+    stamped with the frames' own timestamps): ``groundtruth``, ``odometry``, ``optimised``,
+    ``estimated``."""
 
 
 class Evaluation:

@@ -1,5 +1,6 @@
 """What every run reports about its input: frame counts and the ground-truth path, with
-the loop closures the detector accepted drawn on it."""
+the loop closures the detector accepted drawn on it; the ground truth also goes to
+``groundtruth.tum`` (the frames' own timestamps), for evo and the TUM tools."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from collections import Counter
 
 import numpy as np
 
-from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
 from slamfront.messages import FrameInfo, LoopResult, Message
 from slamfront.report import plots
 
@@ -23,12 +24,15 @@ class FrameOverview(Evaluation):
         """Frame -> (traversal, sequence index, true position)."""
         self._accepted: dict[int, int] = {}
         """Query frame -> the match the loop detector accepted."""
+        self._stamped: dict[int, tuple[float, np.ndarray]] = {}
+        """Frame -> (timestamp, true camera-to-world pose)."""
 
     def observe(self, kind: str, message: Message) -> None:
         if isinstance(message, FrameInfo):
             self._counts[message.traversal] += 1
             if message.pose is not None:
                 self._positions[message.frame] = (message.traversal, message.sequence_index, message.pose[:3, 3].copy())
+                self._stamped[message.frame] = (float(message.timestamp), np.asarray(message.pose, dtype=np.float64))
         elif isinstance(message, LoopResult) and message.accepted and message.match >= 0:
             self._accepted[message.frame] = message.match
 
@@ -44,8 +48,14 @@ class FrameOverview(Evaluation):
                 self._paths(), context.out_dir / "trajectory.png", "ground-truth path and accepted loop closures",
                 links=links, flagged=dots,
             ).name)
+        trajectories = {}
+        if self._stamped:
+            stamped = sorted(self._stamped.values(), key=lambda item: item[0])
+            trajectories["groundtruth"] = PoseFile(np.array([t for t, _ in stamped]), np.stack([p for _, p in stamped]))
+            lines += ["", f"Ground truth of {len(stamped)} frames: `groundtruth.tum` (TUM format, the frames' timestamps)."]
         markdown = "\n".join(lines) + "\n\n" + "".join(f"![{f}]({f})\n\n" for f in figures)
-        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures,
+                                trajectories=trajectories)
 
     def _paths(self) -> dict[str, np.ndarray]:
         """Each traversal's positions in route order (its sequence index), not arrival

@@ -34,9 +34,8 @@ import numpy as np
 from slamfront.core.errors import CoreError
 from slamfront.core.loops import PrecisionRecall, precision_recall
 from slamfront.core.trajectory import absolute_trajectory_error, delta_pairs, evaluate_poses, relative_pose_error
-from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
+from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
 from slamfront.formats.npz import write_message_npz
-from slamfront.formats.poses import Trajectory, write_tum
 from slamfront.messages import FrameInfo, KeyframeAdded, KeyframeMap, Message, PoseEstimate
 from slamfront.report import plots
 
@@ -117,6 +116,7 @@ class LocalizationEvaluation(Evaluation):
         localized = [e for e in estimates if e.keyframe >= 0]
         in_map = [e for e in estimates if self._in_map(e.frame)]
         out_of_map = [e for e in estimates if not self._in_map(e.frame)]
+        trajectories: dict[str, PoseFile] = {}
         metrics: dict[str, float | int | str | None] = {
             "n_keyframes": n_keyframes,
             "n_localization_queries": len(estimates),
@@ -141,7 +141,8 @@ class LocalizationEvaluation(Evaluation):
         if scored:
             metrics.update(self._trajectory_metrics(scored))
             metrics.update(self._region_metrics(scored))
-            notes += self._write_trajectories(context.out_dir, scored)
+            trajectories, written = self._trajectories(scored)
+            notes += written
         else:
             notes.append("No localized in-map frame has a ground-truth pose: no ATE/RPE.")
         if context.options.plots:
@@ -162,7 +163,8 @@ class LocalizationEvaluation(Evaluation):
         shown = {**metrics, **{k: v for k, v in context.statistics.items() if k.startswith("localization_latency")}}
         table = "\n".join(["| metric | value |", "| --- | --- |", *(f"| {k} | {_fmt(v)} |" for k, v in shown.items())])
         markdown = "\n\n".join([*notes, table, *(f"![{f}]({f})" for f in figures)]) + "\n"
-        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
+        return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures,
+                                trajectories=trajectories)
 
     def _save_map(self, out_dir: Path) -> bool:
         if self._map is None or self._map.descriptors is None:
@@ -240,31 +242,46 @@ class LocalizationEvaluation(Evaluation):
             metrics.update({pnp: refined[key] for key, pnp in _PNP_KEYS.items() if key in refined})
         return metrics
 
-    def _write_trajectories(self, out_dir: Path, scored: list[PoseEstimate]) -> list[str]:
-        """TUM files in route order; returns report notes (how to reproduce the numbers)."""
+    def _trajectories(self, scored: list[PoseEstimate]) -> tuple[dict[str, PoseFile], list[str]]:
+        """TUM trajectories for the runtime to write, and report notes on reproducing the numbers.
+
+        ``estimated.tum`` (and ``estimated_pnp.tum``) carry the frames' own timestamps, so
+        they pair with the run's ``groundtruth.tum``. When frames arrived out of route
+        order (a kidnapped robot), RPE is scored along the route: ``*_route.tum`` list the
+        frames in route order stamped with the run's timestamps sorted, so tools that
+        order by time see the route."""
         route = self._route(scored)
-        stamps = np.array([self._truth[e.frame].timestamp for e in route], dtype=np.float64)
-        notes = []
-        if np.any(np.diff(stamps) <= 0):
-            # frames arrived out of route order (a kidnapped robot): tools order by time,
-            # so the files carry the run's timestamps sorted, one per frame in route order
-            stamps = np.sort(stamps)
-            notes.append("Frames arrived out of route order: the TUM files list them in route order, stamped "
-                         "with the run's timestamps in increasing order, so tools that sort by time see the route.")
-        gt = np.stack([self._truth[e.frame].pose for e in route])
-        write_tum(out_dir / "groundtruth_tum.txt", Trajectory(stamps, gt))
-        write_tum(out_dir / "estimated_tum.txt", Trajectory(stamps, np.stack([e.keyframe_pose for e in route])))
-        files = "`groundtruth_tum.txt` `estimated_tum.txt`"
-        if any(e.refined for e in route):
-            write_tum(out_dir / "estimated_pnp_tum.txt", Trajectory(stamps, np.stack([e.pose for e in route])))
-            files += " (keyframe poses; `estimated_pnp_tum.txt`: refined)"
-        notes.append(
-            f"Trajectories in TUM format: {files}. `slamfront eval traj groundtruth_tum.txt estimated_tum.txt "
-            "--all-intervals` gives the same ATE and RPE; so do `evo_ape tum groundtruth_tum.txt estimated_tum.txt "
-            "-a` (ATE) and `evo_rpe tum groundtruth_tum.txt estimated_tum.txt -a` (RPE, delta 1 frame; add "
-            "`--delta N --all_pairs` for other deltas)."
-        )
-        return notes
+        own = np.array([self._truth[e.frame].timestamp for e in route], dtype=np.float64)
+        order = np.argsort(own, kind="stable")
+        keyframe_poses = np.stack([e.keyframe_pose for e in route])
+        refined = any(e.refined for e in route)
+        pnp_poses = np.stack([e.pose for e in route]) if refined else None
+        files = {"estimated": PoseFile(own[order], keyframe_poses[order])}
+        if pnp_poses is not None:
+            files["estimated_pnp"] = PoseFile(own[order], pnp_poses[order])
+        names = "`estimated.tum`" + (" (keyframe poses; `estimated_pnp.tum`: refined)" if refined else "")
+        notes = [
+            f"Trajectories in TUM format, with the frames' timestamps: {names}, and the run's `groundtruth.tum`. "
+            "`slamfront eval traj groundtruth.tum estimated.tum` and `evo_ape tum groundtruth.tum estimated.tum -a` "
+            "give `ate_rmse_m`."
+        ]
+        if np.any(np.diff(own) <= 0):
+            route_stamps = np.sort(own)
+            gt = np.stack([self._truth[e.frame].pose for e in route])
+            files["groundtruth_route"] = PoseFile(route_stamps, gt)
+            files["estimated_route"] = PoseFile(route_stamps, keyframe_poses)
+            if pnp_poses is not None:
+                files["estimated_pnp_route"] = PoseFile(route_stamps, pnp_poses)
+            notes.append(
+                "Frames arrived out of route order, and RPE is scored along the route: `groundtruth_route.tum` "
+                "`estimated_route.tum` list them in route order, stamped with the run's timestamps in increasing "
+                "order; `evo_rpe tum groundtruth_route.tum estimated_route.tum -a` gives `rpe_rmse_m` (delta 1 "
+                "frame; add `--delta N --all_pairs` for other deltas)."
+            )
+        else:
+            notes.append("`evo_rpe tum groundtruth.tum estimated.tum -a` gives `rpe_rmse_m` (delta 1 frame; add "
+                         "`--delta N --all_pairs` for other deltas).")
+        return files, notes
 
     # --- plots --------------------------------------------------------------------------
 

@@ -16,13 +16,14 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
@@ -35,6 +36,23 @@ from slamfront.outputs import open_output
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 PROFILE = ""  # no ROS profile: Foxglove reads protobuf and jsonschema channels directly
+
+logger = logging.getLogger(__name__)
+
+
+class LogSink(Protocol):
+    """Something that sees every channel and message as the log gets them (``--live``).
+
+    A sink only watches: it gets the bytes the log stores, after they are stored, and a
+    sink that fails is dropped with a warning; the log and the run go on.
+    """
+
+    def channel(self, channel_id: int, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
+                message_encoding: str) -> None:
+        """A new channel (topic) of the log."""
+
+    def message(self, channel_id: int, log_time_ns: int, data: bytes) -> None:
+        """A message of a channel announced before."""
 
 
 class _HashedStream:
@@ -111,6 +129,7 @@ class RunLogWriter:
         self._protobuf_schema_data: dict[str, bytes] = {}
         self._json_schema_data: dict[str, bytes] = {}
         self._sequence: dict[int, int] = {}
+        self._sinks: list[LogSink] = []
         self._closed = False
         self._sync_seconds = sync_seconds
         self._last_sync = time.monotonic()
@@ -137,7 +156,21 @@ class RunLogWriter:
         schema_id = self._schema(schema_name, schema_encoding, schema_data) if schema_name or schema_encoding else 0
         channel_id = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
+        self._tell_sinks("channel", channel_id, topic, schema_name, schema_encoding, schema_data, encoding)
         return channel_id
+
+    def add_sink(self, sink: LogSink) -> None:
+        """Let ``sink`` see every channel and message written from now on (add it before the first write)."""
+        self._sinks.append(sink)
+
+    def _tell_sinks(self, what: str, *args: Any) -> None:
+        for sink in list(self._sinks):
+            try:
+                getattr(sink, what)(*args)
+            except Exception as exc:  # noqa: BLE001 (a watcher must never stop the run or the log)
+                self._sinks.remove(sink)
+                logger.warning("%s stopped (%s: %s); the log is still written", type(sink).__name__,
+                               type(exc).__name__, exc)
 
     def _json_schema(self, cls: type[Message]) -> bytes:
         if cls.schema_name not in self._json_schema_data:
@@ -164,6 +197,8 @@ class RunLogWriter:
         )
         self.bytes_payload += len(data)
         self.n_messages += 1
+        if self._sinks:
+            self._tell_sinks("message", channel_id, log_time_ns, data)
         if self._sync_seconds is not None and time.monotonic() - self._last_sync >= self._sync_seconds:
             self._sync()
 

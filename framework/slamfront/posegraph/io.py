@@ -55,6 +55,9 @@ class LoadedGraph:
 
     parsed: ParsedGraph
     ground_truth: np.ndarray | None = None
+    timestamps: np.ndarray | None = None
+    """(N,) seconds of the graph's vertices when the input carries them (a run log's
+    frame times), else None: the TUM files then use the vertex ids."""
 
 
 def read_graph(path: Path, graph_format: GraphFormat = "auto") -> LoadedGraph:
@@ -81,12 +84,15 @@ def graph_from_log(path: Path) -> LoadedGraph:
                         "run a recipe with a backend stage, or give a g2o file")
     state: PoseGraphState | None = None
     truth: dict[int, np.ndarray] = {}
+    stamps: dict[int, float] = {}
     for logged in read_messages(path, topics=[*topics, "/frames"], strict=summary.complete):
         message = logged.decoded
         if isinstance(message, PoseGraphState):
             state = message
-        elif isinstance(message, FrameInfo) and message.pose is not None:
-            truth[message.frame] = message.pose[:3, 3]
+        elif isinstance(message, FrameInfo):
+            stamps[message.frame] = float(message.timestamp)
+            if message.pose is not None:
+                truth[message.frame] = message.pose[:3, 3]
     assert state is not None
     try:
         graph = state.to_graph(name=str(path))
@@ -95,7 +101,8 @@ def graph_from_log(path: Path) -> LoadedGraph:
     positions = None
     if truth and all(int(v) in truth for v in graph.ids):
         positions = np.array([truth[int(v)] for v in graph.ids])[:, : graph.dim]
-    return LoadedGraph(ParsedGraph(graph, "log"), positions)
+    times = np.array([stamps[int(v)] for v in graph.ids]) if all(int(v) in stamps for v in graph.ids) else None
+    return LoadedGraph(ParsedGraph(graph, "log"), positions, times)
 
 
 def _is_graph_text(lines: list[str]) -> bool:
@@ -217,10 +224,12 @@ def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
     return write_text(path, format_g2o(graph, poses))
 
 
-def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
-    """Poses as a TUM trajectory whose timestamps are the vertex ids (planar ones at z = 0)."""
+def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray, timestamps: np.ndarray | None = None) -> Path:
+    """Poses as a TUM trajectory (planar ones at z = 0), stamped with ``timestamps`` (the
+    vertices' own times, seconds) when given, else with the vertex ids."""
     spatial = geometry.planar_to_spatial(poses) if graph.dim == 2 else np.asarray(poses)
-    return pose_files.write_tum(path, pose_files.Trajectory(graph.ids.astype(np.float64), spatial))
+    stamps = graph.ids.astype(np.float64) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
+    return pose_files.write_tum(path, pose_files.Trajectory(stamps, spatial))
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """``slamfront optimize`` as a library call: read, optimise, measure, write.
 
 Outputs in the chosen folder: ``metrics.json``, ``optimized.g2o`` (the graph with the
-optimised poses as vertices), ``trajectory.tum`` and ``initial.tum`` (timestamps are
-vertex ids), ``report.md`` and ``before_after.png``.
+optimised poses as vertices), ``trajectory.tum`` and ``initial.tum`` (timestamps are the
+frames' times when the input is a run log, else vertex ids), ``report.md`` and
+``before_after.png``.
 """
 
 from __future__ import annotations
@@ -78,8 +79,8 @@ def optimize_file(
     make_folder(out_dir)
     files = [
         write_g2o(out_dir / "optimized.g2o", graph, result.poses),
-        write_tum(out_dir / "trajectory.tum", graph, result.poses),
-        write_tum(out_dir / "initial.tum", graph, result.initial),
+        write_tum(out_dir / "trajectory.tum", graph, result.poses, loaded.timestamps),
+        write_tum(out_dir / "initial.tum", graph, result.initial, loaded.timestamps),
     ]
     figures = []
     if plots:

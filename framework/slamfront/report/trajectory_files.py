@@ -1,0 +1,35 @@
+"""Writing a run's trajectories as TUM files (``<name>.tum``), atomically.
+
+The runtime writes them once, beside ``metrics.json``, from what the evaluations
+collected (:attr:`slamfront.evaluation.EvaluationReport.trajectories`): plugins never
+write files. Each line is ``timestamp tx ty tz qx qy qz qw`` with the frame's own
+timestamp, so ``evo`` and the TUM benchmark tools pair the files with each other and
+with any other trajectory of the same recording.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+from slamfront.formats.poses import Trajectory, write_tum
+
+SUFFIX = ".tum"
+
+
+def write_trajectory_files(out_dir: Path, trajectories: Mapping[str, Trajectory]) -> list[Path]:
+    """Write each trajectory to ``out_dir/<name>.tum`` (a temporary file renamed into place).
+
+    :returns: the files written, in the order given.
+    """
+    written = []
+    for name, trajectory in trajectories.items():
+        if len(trajectory) == 0:
+            continue
+        path = out_dir / f"{name}{SUFFIX}"
+        tmp = path.with_name(path.name + ".tmp")
+        write_tum(tmp, trajectory)
+        os.replace(tmp, path)
+        written.append(path)
+    return written
