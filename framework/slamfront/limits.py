@@ -15,26 +15,32 @@ state to reset.
 from __future__ import annotations
 
 import os
-
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from dataclasses import dataclass, field, fields, replace
 
 from slamfront.errors import SlamfrontError
 
 LIMITS_ENV = "SLAMFRONT_LIMITS"
 
 
-class Limits(BaseModel):
-    """The limits in force (defaults, or as ``SLAMFRONT_LIMITS`` sets them)."""
+def _limit(default: float, description: str) -> float:
+    return field(default=default, metadata={"description": description})
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
-    frames: int = Field(1_000_000, gt=0, description="frames one generated source may produce")
-    image_pixels: int = Field(50_000_000, gt=0, description="pixels of one generated image")
-    world_length_m: float = Field(100_000.0, gt=0, description="length of a generated world's route, metres")
-    sweep_runs: int = Field(10_000, gt=0, description="runs one sweep file may expand to")
-    yaml_nodes: int = Field(200_000, gt=0, description="nodes of a YAML document with its aliases expanded")
-    text_bytes: int = Field(16 << 20, gt=0, description="size of a recipe or sweep file, bytes")
-    chunk_bytes: int = Field(256 << 20, gt=0, description="uncompressed size of one MCAP chunk, bytes")
+@dataclass(frozen=True)
+class Limits:
+    """The limits in force (defaults, or as ``SLAMFRONT_LIMITS`` sets them); each is > 0.
+
+    A plain dataclass, not a pydantic model: reading a recipe's size limit must not cost
+    the import of pydantic (``slamfront recipes`` lists files in a few tens of ms).
+    """
+
+    frames: int = _limit(1_000_000, "frames one generated source may produce")
+    image_pixels: int = _limit(50_000_000, "pixels of one generated image")
+    world_length_m: float = _limit(100_000.0, "length of a generated world's route, metres")
+    sweep_runs: int = _limit(10_000, "runs one sweep file may expand to")
+    yaml_nodes: int = _limit(200_000, "nodes of a YAML document with its aliases expanded")
+    text_bytes: int = _limit(16 << 20, "size of a recipe or sweep file, bytes")
+    chunk_bytes: int = _limit(256 << 20, "uncompressed size of one MCAP chunk, bytes")
 
 
 def current_limits() -> Limits:
@@ -45,22 +51,22 @@ def current_limits() -> Limits:
     text = os.environ.get(LIMITS_ENV, "").strip()
     if not text:
         return Limits()
+    kinds = {f.name: f.type for f in fields(Limits)}
     values: dict[str, float] = {}
     for item in text.split(","):
         name, sep, value = item.strip().partition("=")
-        if not sep or name not in Limits.model_fields:
+        if not sep or name not in kinds:
             raise SlamfrontError(
-                f"${LIMITS_ENV}: {item.strip()!r}: expected NAME=VALUE with NAME one of {', '.join(Limits.model_fields)}"
+                f"${LIMITS_ENV}: {item.strip()!r}: expected NAME=VALUE with NAME one of {', '.join(kinds)}"
             )
         try:
-            values[name] = float(value)
+            number = float(value)
         except ValueError:
             raise SlamfrontError(f"${LIMITS_ENV}: {item.strip()!r}: {value!r} is not a number") from None
-    integral = {k: int(v) if Limits.model_fields[k].annotation is int else v for k, v in values.items()}
-    try:
-        return Limits(**integral)
-    except ValidationError as exc:
-        raise SlamfrontError(f"${LIMITS_ENV}: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}") from None
+        if not number > 0:
+            raise SlamfrontError(f"${LIMITS_ENV}: {name}: must be greater than 0, got {value}")
+        values[name] = int(number) if kinds[name] == "int" else number
+    return replace(Limits(), **values)
 
 
 def over_limit(name: str, value: float, what: str) -> str | None:

@@ -14,13 +14,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from slamfront.data import DATA_ENV, MIRROR_ENV, data_root, download_root, user_data_dir
+from slamfront.data import DATA_ENV, MIRROR_ENV, data_root, download_root
 from slamfront.errors import DataError
 
 if TYPE_CHECKING:  # the rest is imported when the command runs: its parser stays light
     from slamfront.datasets import DatasetDownload
     from slamfront.manifest import PinnedDataset, PinnedFile
-    from slamfront.registry import PluginRegistry
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -32,8 +31,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "datasets the tests read; `path` prints the data root (or where NAME is); `download NAME` fetches "
             "a source's dataset (official URL, resumable, checksum); `fetch --for-tests` fetches the pinned "
             "datasets missing from the data root, file by file, each checked against its SHA-256. "
-            f"The data root is ${DATA_ENV}, else shared/data beside a source checkout, else {user_data_dir()}; "
-            f"downloads go to ${DATA_ENV}, else {user_data_dir()}."
+            f"The data root is ${DATA_ENV}, else shared/data beside a source checkout, else the per-user data "
+            f"directory (~/.local/share/slamfront on Linux); downloads go to ${DATA_ENV}, else the per-user data "
+            "directory. `slamfront datasets path` prints the data root, `slamfront datasets` both folders."
         ),
     )
     parser.add_argument(
@@ -53,26 +53,42 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
-def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, DatasetDownload]]:
-    """Every dataset the installed sources declare: ``{name: (source plugin, download)}``."""
-    from slamfront.registry import PluginRegistry
+DATASETS_GROUP = "slamfront.datasets"
+"""The entry-point group listing the public datasets of installed sources (see pyproject.toml)."""
+
+
+def catalogue() -> dict[str, tuple[str, DatasetDownload]]:
+    """Every dataset the installed sources declare: ``{name: (source plugin, download)}``.
+
+    Read from the ``slamfront.datasets`` entry-point group, whose modules hold only the
+    records: listing them imports no source. A module that cannot be imported is one
+    warning line naming it; the others are still listed.
+    """
+    from importlib.metadata import entry_points
 
     found: dict[str, tuple[str, DatasetDownload]] = {}
-    for info in (registry or PluginRegistry()).all("source"):
-        for spec in getattr(info.cls, "downloads", ()):
-            found[spec.name] = (info.name, spec)
+    for entry_point in entry_points(group=DATASETS_GROUP):
+        try:
+            declared = entry_point.load().DOWNLOADS
+        except Exception as exc:  # noqa: BLE001 - a broken third-party module must not hide the others
+            owner = f" of {entry_point.dist.name}" if entry_point.dist is not None else ""
+            print(f"slamfront: warning: {DATASETS_GROUP} entry point {entry_point.name!r}{owner} ({entry_point.value}) "
+                  f"cannot be read: {type(exc).__name__}: {exc}", file=sys.stderr)
+            continue
+        for source, downloads in declared.items():
+            for spec in downloads:
+                found[spec.name] = (source, spec)
     return found
 
 
 def run(args: argparse.Namespace) -> int:
-    from slamfront.datasets import fetch
-    from slamfront.suggest import did_you_mean
-
     if args.action == "fetch":
         return _fetch(args)
     if args.action == "path" and not args.names:
         print(data_root())
         return 0
+    from slamfront.datasets import fetch
+
     datasets = catalogue()
     into = args.dir or download_root()
     if args.action == "list":
@@ -81,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"`slamfront datasets {args.action}` needs one dataset name: {', '.join(sorted(datasets))}")
     name = args.names[0]
     if name not in datasets:
+        from slamfront.suggest import did_you_mean
+
         raise DataError(f"unknown dataset {name!r}; {did_you_mean(name, datasets, 'datasets')}")
     source, spec = datasets[name]
     if args.action == "path":

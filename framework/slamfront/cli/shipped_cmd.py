@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import textwrap
 from pathlib import Path
 
 from slamfront.errors import SlamfrontError
@@ -36,13 +37,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def print_listing(paths: list[Path], what: str) -> None:
-    """One line per file: its stem and the first line of its ``description``."""
-    from slamfront.recipe import read_yaml_mapping  # pydantic and the plugins: not for the parser
+    """One line per file: its stem and the start of its ``description`` (cut at a word, ~100 characters)."""
+    from slamfront.yamlfile import read_yaml_mapping  # PyYAML only: no pydantic, no plugins
 
     width = max((len(p.stem) for p in paths), default=4)
     for path in paths:
-        description = str(read_yaml_mapping(path, what).get("description", "")).strip().splitlines()
-        print(f"{path.stem:<{width}}  {description[0] if description else ''}")
+        description = str(read_yaml_mapping(path, what).get("description", ""))
+        print(f"{path.stem:<{width}}  {textwrap.shorten(description, 100, placeholder=' ...')}")
 
 
 def run_listing(args: argparse.Namespace) -> int:
