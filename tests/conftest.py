@@ -12,6 +12,13 @@ from slamfront.cli import main
 from slamfront.data import data_root
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that asks for the real data is a ``realdata`` test: ``-m "not realdata"`` leaves it out."""
+    for item in items:
+        if "shared_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.realdata)
+
+
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     """The real-data root; its absence is a failure, not a skip (docs/data.md)."""

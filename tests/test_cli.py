@@ -42,7 +42,8 @@ def test_run_inspect_json(cli, write_recipe, tmp_path: Path) -> None:
 
 def test_recipes_lists_shipped_ones(cli) -> None:
     code, stdout, _ = cli("recipes")
-    assert code == 0 and stdout.startswith("demo") or "\ndemo " in stdout
+    listed = {line.split()[0] for line in stdout.splitlines() if line.strip()}
+    assert code == 0 and "demo" in listed and "paired_demo" in listed
 
 
 def test_missing_recipe_file(cli, tmp_path: Path) -> None:

@@ -214,3 +214,24 @@ def test_a_broken_plugin_package_stops_only_what_uses_it(tmp_path) -> None:  # t
     done = slamfront("plugins")
     assert done.returncode == 2 and "synthetic" in done.stdout
     assert "error: entry point 'broken' of brokenplugins 1.0 (brokenplugins_gone) cannot be imported" in done.stderr
+
+
+def test_listing_the_built_in_plugins_loads_none_of_the_libraries_they_compute_with() -> None:
+    # `slamfront plugins` imports every plugin module; OpenCV, Open3D, GTSAM, SciPy and numba
+    # load when a plugin computes (slamfront.lazy), not when it is listed
+    import subprocess
+    import sys
+
+    heavy = ("cv2", "open3d", "gtsam", "scipy", "numba", "matplotlib")
+    code = (
+        "import sys, importlib.metadata as m\n"
+        "from slamfront.registry import PluginRegistry\n"
+        "builtins = [e.value for e in m.entry_points(group='slamfront') if e.dist.name == 'slamfront']\n"
+        "registry = PluginRegistry(modules=builtins, load_entry_points=False)\n"
+        "assert len(registry.all()) > 20\n"
+        "for info in registry.all():\n"
+        "    info.cls.Config.model_json_schema()\n"
+        f"print(' '.join(n for n in {heavy!r} if type(sys.modules.get(n)).__name__ == 'module'))\n"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert loaded == []

@@ -6,7 +6,6 @@ the camera of the current frame (x right, y down, z forward, as OpenCV).
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
@@ -27,6 +26,9 @@ from google.protobuf.timestamp_pb2 import Timestamp
 from scipy.spatial.transform import Rotation
 
 from slamfront.frame import Camera
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 MAP_FRAME = "map"
 CAMERA_FRAME = "camera"
