@@ -15,32 +15,39 @@ state to reset.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field, fields, replace
+from typing import NamedTuple
 
 from slamfront.errors import SlamfrontError
 
 LIMITS_ENV = "SLAMFRONT_LIMITS"
 
 
-def _limit(default: float, description: str) -> float:
-    return field(default=default, metadata={"description": description})
-
-
-@dataclass(frozen=True)
-class Limits:
+class Limits(NamedTuple):
     """The limits in force (defaults, or as ``SLAMFRONT_LIMITS`` sets them); each is > 0.
 
-    A plain dataclass, not a pydantic model: reading a recipe's size limit must not cost
-    the import of pydantic (``slamfront recipes`` lists files in a few tens of ms).
+    A named tuple, not a pydantic model or a dataclass: reading a recipe's size limit must
+    not cost those imports (``slamfront recipes`` lists files in a few tens of ms).
     """
 
-    frames: int = _limit(1_000_000, "frames one generated source may produce")
-    image_pixels: int = _limit(50_000_000, "pixels of one generated image")
-    world_length_m: float = _limit(100_000.0, "length of a generated world's route, metres")
-    sweep_runs: int = _limit(10_000, "runs one sweep file may expand to")
-    yaml_nodes: int = _limit(200_000, "nodes of a YAML document with its aliases expanded")
-    text_bytes: int = _limit(16 << 20, "size of a recipe or sweep file, bytes")
-    chunk_bytes: int = _limit(256 << 20, "uncompressed size of one MCAP chunk, bytes")
+    frames: int = 1_000_000
+    image_pixels: int = 50_000_000
+    world_length_m: float = 100_000.0
+    sweep_runs: int = 10_000
+    yaml_nodes: int = 200_000
+    text_bytes: int = 16 << 20
+    chunk_bytes: int = 256 << 20
+
+
+LIMIT_DESCRIPTIONS = {
+    "frames": "frames one generated source may produce",
+    "image_pixels": "pixels of one generated image",
+    "world_length_m": "length of a generated world's route, metres",
+    "sweep_runs": "runs one sweep file may expand to",
+    "yaml_nodes": "nodes of a YAML document with its aliases expanded",
+    "text_bytes": "size of a recipe or sweep file, bytes",
+    "chunk_bytes": "uncompressed size of one MCAP chunk, bytes",
+}
+"""What each limit bounds."""
 
 
 def current_limits() -> Limits:
@@ -51,7 +58,7 @@ def current_limits() -> Limits:
     text = os.environ.get(LIMITS_ENV, "").strip()
     if not text:
         return Limits()
-    kinds = {f.name: f.type for f in fields(Limits)}
+    kinds = Limits._field_defaults  # a limit is an int where its default is one
     values: dict[str, float] = {}
     for item in text.split(","):
         name, sep, value = item.strip().partition("=")
@@ -65,8 +72,8 @@ def current_limits() -> Limits:
             raise SlamfrontError(f"${LIMITS_ENV}: {item.strip()!r}: {value!r} is not a number") from None
         if not number > 0:
             raise SlamfrontError(f"${LIMITS_ENV}: {name}: must be greater than 0, got {value}")
-        values[name] = int(number) if kinds[name] == "int" else number
-    return replace(Limits(), **values)
+        values[name] = int(number) if isinstance(kinds[name], int) else number
+    return Limits()._replace(**values)
 
 
 def over_limit(name: str, value: float, what: str) -> str | None:

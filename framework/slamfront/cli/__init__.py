@@ -14,7 +14,6 @@ import importlib
 import logging
 import os
 import sys
-import traceback
 from collections.abc import Sequence
 
 import slamfront
@@ -102,6 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         failure = run_failure_of(exc)
         if failure is None:
             raise  # a bug outside any run: Python's own traceback says it all
+        import traceback
+
         traceback.print_exc()  # a plugin's (or slamfront's) bug: its author needs the traceback
         print(
             f"slamfront: error: the run failed {failure.where}: {type(exc).__name__}: {exc}; "

@@ -64,21 +64,53 @@ def catalogue() -> dict[str, tuple[str, DatasetDownload]]:
     records: listing them imports no source. A module that cannot be imported is one
     warning line naming it; the others are still listed.
     """
-    from importlib.metadata import entry_points
+    import importlib
 
     found: dict[str, tuple[str, DatasetDownload]] = {}
-    for entry_point in entry_points(group=DATASETS_GROUP):
+    for name, value, owner in _dataset_entry_points():
         try:
-            declared = entry_point.load().DOWNLOADS
+            module, _, attribute = value.partition(":")  # `module` (its DOWNLOADS) or `module:mapping`
+            declared = getattr(importlib.import_module(module), attribute.strip() or "DOWNLOADS")
         except Exception as exc:  # noqa: BLE001 - a broken third-party module must not hide the others
-            owner = f" of {entry_point.dist.name}" if entry_point.dist is not None else ""
-            print(f"slamfront: warning: {DATASETS_GROUP} entry point {entry_point.name!r}{owner} ({entry_point.value}) "
+            print(f"slamfront: warning: {DATASETS_GROUP} entry point {name!r} of {owner} ({value}) "
                   f"cannot be read: {type(exc).__name__}: {exc}", file=sys.stderr)
             continue
         for source, downloads in declared.items():
             for spec in downloads:
                 found[spec.name] = (source, spec)
     return found
+
+
+def _dataset_entry_points() -> list[tuple[str, str, str]]:
+    """(name, value, distribution) of each entry point of the group.
+
+    Read from the ``entry_points.txt`` of the distributions on ``sys.path`` (what
+    :mod:`importlib.metadata` reads too), because importing that module costs as much as
+    starting Python; through it when the scan finds none (an unusual installation).
+    """
+    import configparser
+
+    points = []
+    for folder in dict.fromkeys(sys.path):
+        try:
+            entries = [e for e in os.scandir(folder or ".") if e.name.endswith((".dist-info", ".egg-info"))]
+        except OSError:
+            continue
+        for entry in entries:
+            text = Path(entry.path, "entry_points.txt")
+            if not text.is_file() or f"[{DATASETS_GROUP}]" not in (content := text.read_text(errors="replace")):
+                continue
+            parser = configparser.ConfigParser(delimiters=("=",), interpolation=None)
+            parser.optionxform = str  # type: ignore[assignment,method-assign]
+            parser.read_string(content)
+            owner = entry.name.rsplit(".", 1)[0].replace("-", " ", 1)
+            points += [(name, value.strip(), owner) for name, value in parser.items(DATASETS_GROUP)]
+    if points:
+        return points
+    from importlib.metadata import entry_points
+
+    return [(e.name, e.value, f"{e.dist.name} {e.dist.version}" if e.dist else "?") for e in
+            entry_points(group=DATASETS_GROUP)]
 
 
 def run(args: argparse.Namespace) -> int:

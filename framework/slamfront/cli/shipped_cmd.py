@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import textwrap
 from pathlib import Path
 
 from slamfront.errors import SlamfrontError
@@ -42,8 +41,10 @@ def print_listing(paths: list[Path], what: str) -> None:
 
     width = max((len(p.stem) for p in paths), default=4)
     for path in paths:
-        description = str(read_yaml_mapping(path, what).get("description", ""))
-        print(f"{path.stem:<{width}}  {textwrap.shorten(description, 100, placeholder=' ...')}")
+        description = " ".join(str(read_yaml_mapping(path, what).get("description", "")).split())
+        if len(description) > 100:  # cut at a word
+            description = description[:97].rsplit(" ", 1)[0] + " ..."
+        print(f"{path.stem:<{width}}  {description}")
 
 
 def run_listing(args: argparse.Namespace) -> int:
