@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import os
 import sys
 from collections.abc import Sequence
 
 import slamfront
 from slamfront.errors import SlamfrontError, run_failure_of
-from slamfront.logcapture import TerminalHandler
 from slamfront.text import shorten
 
 COMMANDS = {
@@ -42,6 +40,10 @@ COMMANDS = {
 """Each sub-command and the module of this package that defines it (in ``--help`` order).
 Only the module of the command given is imported: ``slamfront recipes`` costs little
 more than starting Python."""
+
+QUIET_COMMANDS = frozenset({"recipes", "sweeps", "layout", "datasets"})
+"""Listing commands that log nothing (they print): they skip the terminal log handler,
+whose ``logging`` import is a tenth of what they cost."""
 
 
 class _Version(argparse.Action):
@@ -72,10 +74,16 @@ def _command_in(argv: Sequence[str]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    terminal = TerminalHandler()  # plugins' and slamfront's warnings, above the progress bar
-    logging.getLogger().addHandler(terminal)
+    arguments = list(sys.argv[1:] if argv is None else argv)
+    terminal = None
+    if _command_in(arguments) not in QUIET_COMMANDS:
+        import logging
+
+        from slamfront.logcapture import TerminalHandler
+
+        terminal = TerminalHandler()  # plugins' and slamfront's warnings, above the progress bar
+        logging.getLogger().addHandler(terminal)
     try:  # parsing too: a Ctrl-C while the parser imports plugins is one line, not a traceback
-        arguments = list(sys.argv[1:] if argv is None else argv)
         completing = "_ARGCOMPLETE" in os.environ
         parser = build_parser(None if completing else arguments)
         if completing:  # the shell asks for completions (see docs: shell completion)
@@ -111,7 +119,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 1
     finally:
-        logging.getLogger().removeHandler(terminal)
+        if terminal is not None:
+            import logging
+
+            logging.getLogger().removeHandler(terminal)
 
 
 if __name__ == "__main__":

@@ -143,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
-    from slamfront.manifest import load_manifest
+    from slamfront.manifest import dataset_summaries
 
     width = max((len(n) for n in datasets), default=4)
     print("Public datasets the sources read (`slamfront datasets download NAME`):")
@@ -155,11 +155,11 @@ def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
         else:
             state = "manual download" if spec.url is None else "not downloaded"
         print(f"  {name:<{width}}  source: {source:<14} {state:<15} {spec.title}")
-    pinned = load_manifest()
-    width = max(len(d.name) for d in pinned)
+    pinned = dataset_summaries()
+    width = max(len(name) for name, *_ in pinned)
     print("\nPinned datasets the tests read (`slamfront datasets fetch --for-tests`):")
-    for dataset in pinned:
-        print(f"  {dataset.name:<{width}}  {dataset.folder:<28} {dataset.size / 1e6:6.1f} MB  {dataset.licence}")
+    for name, folder, _, size, licence in pinned:
+        print(f"  {name:<{width}}  {folder:<28} {size / 1e6:6.1f} MB  {licence}")
     print(f"\ndata root: {data_root()}\ndownloads: {into}")
     return 0
 
