@@ -188,11 +188,14 @@ def test_odometry_from_the_images_and_a_late_answer_verified_on_its_own_frame() 
     odometry = [m for m in messages if isinstance(m, RelativePose)]
     assert [(m.frame_from, m.frame_to) for m in odometry] == [(k - 1, k) for k in range(1, 48)]
     measured = [m for m in odometry if m.method == "pnp odometry"]
-    assert len(measured) >= 28 and all(m.inliers >= 20 for m in measured)  # corners of a 36 m block: not all
-    for message in measured:
-        translation, _ = _error(message.transform, geometry.relative(frames[message.frame_from].pose,
-                                                                      frames[message.frame_to].pose))
-        assert translation < 0.5  # 1.5 m between frames
+    # Bounds from the spread over +-1-ulp perturbations of every depth pixel (what another CPU's
+    # rounding could do; benchmarks/results/machine_spread.md): 29-30 frames measured, median
+    # error 0.13-0.18 m, largest 0.46-0.57 m, 1.5 m between frames. Corners of a 36 m block: not all.
+    assert len(measured) >= 25 and all(m.inliers >= 20 for m in measured)
+    translations = [
+        _error(m.transform, geometry.relative(frames[m.frame_from].pose, frames[m.frame_to].pose))[0] for m in measured
+    ]
+    assert np.median(translations) < 0.3 and max(translations) < 0.8, translations
     assert backend.statistics()["n_odometry_fallbacks"] == 47 - len(measured)
     (constraint,) = [m for m in messages if isinstance(m, LoopConstraint)]
     assert (constraint.frame, constraint.match) == (42, 18) and constraint.added, constraint.reason

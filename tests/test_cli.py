@@ -42,7 +42,8 @@ def test_run_inspect_json(cli, write_recipe, tmp_path: Path) -> None:
 
 def test_recipes_lists_shipped_ones(cli) -> None:
     code, stdout, _ = cli("recipes")
-    assert code == 0 and stdout.startswith("demo") or "\ndemo " in stdout
+    listed = {line.split()[0] for line in stdout.splitlines() if line.strip()}
+    assert code == 0 and "demo" in listed and "paired_demo" in listed
 
 
 def test_missing_recipe_file(cli, tmp_path: Path) -> None:
@@ -135,3 +136,17 @@ def test_eval_traj_lists_every_trajectory_format() -> None:
     from slamfront.formats.poses import TRAJECTORY_READERS
 
     assert FORMATS == tuple(sorted(TRAJECTORY_READERS))
+
+
+def test_every_sub_command_is_built_by_the_module_the_table_names() -> None:
+    # `slamfront X` builds only the parser of X's module (COMMANDS): the table must say which
+    import argparse
+
+    from slamfront.cli import COMMANDS, build_parser
+
+    full = build_parser()
+    (subparsers,) = [a for a in full._actions if isinstance(a, argparse._SubParsersAction)]
+    assert list(subparsers.choices) == list(COMMANDS)
+    for command in COMMANDS:
+        (alone,) = [a for a in build_parser([command])._actions if isinstance(a, argparse._SubParsersAction)]
+        assert command in alone.choices and set(alone.choices) <= set(COMMANDS)

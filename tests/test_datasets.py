@@ -316,3 +316,21 @@ def test_a_data_folder_beside_the_checkout_is_never_written(cli, tmp_path: Path,
     code, _, err = cli("datasets", "fetch", "--for-tests")
     assert code == 2 and "2 pinned files are missing or differ (fr1_gt_vs_est)" in err and "SLAMFRONT_DATA=DIR" in err
     assert not (tmp_path / "shared").exists() and not (tmp_path / "user").exists()
+
+
+def test_the_catalogue_lists_every_source_s_downloads_without_importing_a_source() -> None:
+    # `slamfront datasets` reads the slamfront.datasets entry points, not the sources: they must agree
+    import subprocess
+    import sys
+
+    from slamfront.cli.datasets_cmd import catalogue
+    from slamfront.registry import PluginRegistry
+
+    listed = catalogue()
+    for info in PluginRegistry().all("source"):
+        for spec in info.cls.downloads:
+            assert listed.get(spec.name) == (info.name, spec), f"{info.name}: {spec.name} is not in slamfront.datasets"
+    assert {source for source, _ in listed.values()} <= set(PluginRegistry().names("source"))
+    code = "import sys; from slamfront.cli.datasets_cmd import catalogue; catalogue(); print(sorted(sys.modules))"
+    modules = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "numpy" not in modules and "slamfront_plugins.sources" not in modules

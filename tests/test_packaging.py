@@ -18,7 +18,7 @@ from slamfront.cli import shipped_cmd
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
 
 REPO = Path(__file__).resolve().parents[1]
-SOURCES = ("framework", "plugins", "recipes", "sweeps", "foxglove", "setup.py", "pyproject.toml", "README.md")
+SOURCES = ("framework", "plugins", "recipes", "sweeps", "foxglove", "setup.py", "pyproject.toml", "README.md", "LICENSE")
 """What the wheel is built from (everything setup.py and pyproject.toml name)."""
 
 
@@ -106,6 +106,12 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path: Path) -> None:
     installed = subprocess.run([venv / "bin" / "python", "-c", "import slamfront; print(slamfront.__file__)"],
                                cwd=work, env=env, capture_output=True, text=True, check=True).stdout
     assert str(venv) in installed  # the wheel's copy, not this checkout
+    metadata = subprocess.run([venv / "bin" / "python", "-c", "from importlib.metadata import metadata; "
+                               "m = metadata('slamfront'); print(m['License-Expression']); print(*m.get_all('Project-URL'), "
+                               "sep='\\n'); print(*m.get_all('License-File'), sep='\\n')"],
+                              cwd=work, env=env, capture_output=True, text=True, check=True).stdout.splitlines()
+    assert metadata[0] == "BSD-3-Clause" and "LICENSE" in metadata
+    assert any(line.startswith("Source, https://") for line in metadata)
     listed = {line.split()[0] for line in slamfront("recipes").splitlines()}
     assert listed == {p.stem for p in (REPO / "recipes").glob("*.yaml")}
     n = _frames_reaching_queries()
@@ -118,3 +124,4 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path: Path) -> None:
     assert "nearest_neighbour" in slamfront("plugins")
     assert Path(slamfront("layout").strip()).is_relative_to(venv)
     assert slamfront("datasets", "path").strip() == str(tmp_path / "home" / "data" / "slamfront")
+    assert "source: nordland" in slamfront("datasets")  # the slamfront.datasets entry points of the wheel

@@ -173,3 +173,65 @@ def test_invalid_plugins_come_first_and_local_modules_are_labelled(cli, tmp_path
     assert listed["good_local"]["origin"].startswith("local module mixed_local_plugins")
     assert listed["colour_histogram"]["origin"].startswith("slamfront-example-plugin ")
     assert "invalid plugin skipped: mixed_local_plugins: descriptor plugin 'nodoc'" in err
+
+
+def _installed_but_broken(tmp_path) -> dict[str, str]:  # type: ignore[no-untyped-def]
+    """An environment (for a subprocess) where a plugin package is installed whose module is gone."""
+    import os
+
+    info = tmp_path / "site" / "brokenplugins-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: brokenplugins\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[slamfront]\nbroken = brokenplugins_gone\n")
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "site"), os.environ.get("PYTHONPATH", "")])}
+
+
+def test_a_broken_plugin_package_stops_only_what_uses_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import subprocess
+    import sys
+
+    import yaml
+
+    from tests.helpers import small_synthetic_recipe
+
+    env = _installed_but_broken(tmp_path)
+    recipe = small_synthetic_recipe(frames_per_traversal=8)
+    (tmp_path / "uses_none.yaml").write_text(yaml.safe_dump(recipe))
+    recipe["loop_detector"]["plugin"] = "from_the_broken_package"
+    (tmp_path / "uses_it.yaml").write_text(yaml.safe_dump(recipe))
+
+    def slamfront(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "slamfront", *args], cwd=tmp_path, env=env, capture_output=True,
+                              text=True, timeout=300)
+
+    done = slamfront("run", "uses_none.yaml", "-q", "-o", "out")
+    assert done.returncode == 0, done.stderr
+    (warning,) = [line for line in done.stderr.splitlines() if "brokenplugins" in line]
+    assert "warning" in warning and "brokenplugins_gone" in warning and "does not use it" in warning
+    done = slamfront("run", "uses_it.yaml", "-q", "-o", "out2")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "from_the_broken_package" in done.stderr and "brokenplugins 1.0" in done.stderr
+    done = slamfront("plugins")
+    assert done.returncode == 2 and "synthetic" in done.stdout
+    assert "error: entry point 'broken' of brokenplugins 1.0 (brokenplugins_gone) cannot be imported" in done.stderr
+
+
+def test_listing_the_built_in_plugins_loads_none_of_the_libraries_they_compute_with() -> None:
+    # `slamfront plugins` imports every plugin module; OpenCV, Open3D, GTSAM, SciPy and numba
+    # load when a plugin computes (slamfront.lazy), not when it is listed
+    import subprocess
+    import sys
+
+    heavy = ("cv2", "open3d", "gtsam", "scipy", "numba", "matplotlib")
+    code = (
+        "import sys, importlib.metadata as m\n"
+        "from slamfront.registry import PluginRegistry\n"
+        "builtins = [e.value for e in m.entry_points(group='slamfront') if e.dist.name == 'slamfront']\n"
+        "registry = PluginRegistry(modules=builtins, load_entry_points=False)\n"
+        "assert len(registry.all()) > 20\n"
+        "for info in registry.all():\n"
+        "    info.cls.Config.model_json_schema()\n"
+        f"print(' '.join(n for n in {heavy!r} if type(sys.modules.get(n)).__name__ == 'module'))\n"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert loaded == []

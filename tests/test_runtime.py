@@ -94,3 +94,15 @@ def test_stream_mode_evaluates_revisits(tmp_path: Path) -> None:
     assert result.metrics["n_queries"] == 80
     # the second lap, and the last frame of the first (the closed route is back at its start)
     assert result.metrics["n_queries_with_true_match"] == 41
+
+
+def test_a_stream_run_reports_its_stream_not_an_empty_reference(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    # a stream has no reference and query halves: no `n_places_reference 0`, no `0 / 40` frames
+    raw = small_synthetic_recipe(mode="stream", laps=2, frames_per_traversal=20)
+    recipe = parse_recipe(raw, "stream.yaml")
+    result = run_pipeline(build_pipeline(recipe, "stream.yaml"), "stream.yaml", tmp_path, progress=False)
+    metrics = json.loads(result.metrics_path.read_text())
+    assert metrics["n_frames_stream"] == 40 and metrics["n_places_stream"] > 0
+    assert metrics.get("n_places_reference") != 0 and metrics.get("n_frames_reference") != 0
+    report = result.report_path.read_text()
+    assert "| frames in the stream | places | searches for a loop |" in report and "0 / 40" not in report

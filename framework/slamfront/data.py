@@ -23,8 +23,6 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
-import platformdirs
-
 from slamfront.errors import DataError
 
 if TYPE_CHECKING:
@@ -49,6 +47,8 @@ def source_checkout() -> Path | None:
 
 def user_data_dir() -> Path:
     """The per-user data directory (the platform's convention, via ``platformdirs``)."""
+    import platformdirs  # ~20 ms: only when asked, not for every command's parser
+
     return platformdirs.user_data_path("slamfront", appauthor=False)
 
 

@@ -12,21 +12,12 @@ an archive fetched by other means: the next ``download`` only verifies and extra
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import shutil
-import tarfile
-import tempfile
-import urllib.error
-import urllib.request
-import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
-
-from tqdm import tqdm
 
 from slamfront.data import download_root
 from slamfront.errors import DataError
@@ -141,6 +132,12 @@ def download(
     retry = retry or f"slamfront datasets download {name}"
     part = target.with_name(target.name + ".part")
     have = part.stat().st_size if part.exists() else 0
+    # not at import: `slamfront datasets` lists the records of this module without them
+    import urllib.error
+    import urllib.request
+
+    from tqdm import tqdm
+
     request = urllib.request.Request(url, headers={"User-Agent": "slamfront"})
     if have:
         request.add_header("Range", f"bytes={have}-")
@@ -178,6 +175,8 @@ def download(
 
 
 def sha256_of(path: Path) -> str:
+    import hashlib  # the imports of this module are kept to what listing its records needs
+
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         while chunk := handle.read(_CHUNK):
@@ -201,6 +200,11 @@ def _member_target(name: str, spec: DatasetDownload, root: Path) -> Path | None:
 
 def _extract(spec: DatasetDownload, archive: Path, folder: Path) -> None:
     """Extract into a temporary folder beside ``folder``, then move it into place."""
+    import shutil
+    import tarfile
+    import tempfile
+    import zipfile
+
     staging = Path(tempfile.mkdtemp(prefix=f".{spec.name}-", dir=folder.parent))
     try:
         if spec.archive == "file":

@@ -8,8 +8,8 @@ when the error stops a run whose log was opened, the exception carries a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 
 class SlamfrontError(Exception):
@@ -32,8 +32,7 @@ class LogError(SlamfrontError):
     """An MCAP log is missing, truncated or not a slamfront log."""
 
 
-@dataclass(frozen=True)
-class RunFailure:
+class RunFailure(NamedTuple):  # not a dataclass: `import dataclasses` costs every command ~10 ms
     """Where a failed run was, and the log it leaves (finalised and readable, but partial)."""
 
     log: Path

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-import cv2
 import numpy as np
 
 Traversal = Literal["reference", "query", "stream"]
@@ -86,4 +85,6 @@ class Frame:
         """The image as ``(H, W)`` uint8 luminance (OpenCV's ITU-R 601 weights)."""
         if self.image.ndim == 2:
             return self.image
+        import cv2  # here, not at import: every plugin module imports this one
+
         return cv2.cvtColor(self.image, cv2.COLOR_RGB2GRAY)

@@ -19,11 +19,13 @@ from pathlib import Path
 from struct import error as struct_error
 from typing import Literal
 
-import cv2
 import numpy as np
 
 from slamfront.errors import DataError
 from slamfront.limits import over_limit
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
 

@@ -15,28 +15,39 @@ state to reset.
 from __future__ import annotations
 
 import os
-
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from typing import NamedTuple
 
 from slamfront.errors import SlamfrontError
 
 LIMITS_ENV = "SLAMFRONT_LIMITS"
 
 
-class Limits(BaseModel):
-    """The limits in force (defaults, or as ``SLAMFRONT_LIMITS`` sets them)."""
+class Limits(NamedTuple):
+    """The limits in force (defaults, or as ``SLAMFRONT_LIMITS`` sets them); each is > 0.
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    A named tuple, not a pydantic model or a dataclass: reading a recipe's size limit must
+    not cost those imports (``slamfront recipes`` lists files in a few tens of ms).
+    """
 
-    frames: int = Field(1_000_000, gt=0, description="frames one generated source may produce")
-    image_pixels: int = Field(
-        50_000_000, gt=0, description="pixels of one image: generated, or declared by a file's or a logged image's header"
-    )
-    world_length_m: float = Field(100_000.0, gt=0, description="length of a generated world's route, metres")
-    sweep_runs: int = Field(10_000, gt=0, description="runs one sweep file may expand to")
-    yaml_nodes: int = Field(200_000, gt=0, description="nodes of a YAML document with its aliases expanded")
-    text_bytes: int = Field(16 << 20, gt=0, description="size of a recipe or sweep file, bytes")
-    chunk_bytes: int = Field(256 << 20, gt=0, description="uncompressed size of one MCAP chunk, bytes")
+    frames: int = 1_000_000
+    image_pixels: int = 50_000_000
+    world_length_m: float = 100_000.0
+    sweep_runs: int = 10_000
+    yaml_nodes: int = 200_000
+    text_bytes: int = 16 << 20
+    chunk_bytes: int = 256 << 20
+
+
+LIMIT_DESCRIPTIONS = {
+    "frames": "frames one generated source may produce",
+    "image_pixels": "pixels of one image: generated, or declared by a file's or a logged image's header",
+    "world_length_m": "length of a generated world's route, metres",
+    "sweep_runs": "runs one sweep file may expand to",
+    "yaml_nodes": "nodes of a YAML document with its aliases expanded",
+    "text_bytes": "size of a recipe or sweep file, bytes",
+    "chunk_bytes": "uncompressed size of one MCAP chunk, bytes",
+}
+"""What each limit bounds."""
 
 
 def current_limits() -> Limits:
@@ -47,22 +58,22 @@ def current_limits() -> Limits:
     text = os.environ.get(LIMITS_ENV, "").strip()
     if not text:
         return Limits()
+    kinds = Limits._field_defaults  # a limit is an int where its default is one
     values: dict[str, float] = {}
     for item in text.split(","):
         name, sep, value = item.strip().partition("=")
-        if not sep or name not in Limits.model_fields:
+        if not sep or name not in kinds:
             raise SlamfrontError(
-                f"${LIMITS_ENV}: {item.strip()!r}: expected NAME=VALUE with NAME one of {', '.join(Limits.model_fields)}"
+                f"${LIMITS_ENV}: {item.strip()!r}: expected NAME=VALUE with NAME one of {', '.join(kinds)}"
             )
         try:
-            values[name] = float(value)
+            number = float(value)
         except ValueError:
             raise SlamfrontError(f"${LIMITS_ENV}: {item.strip()!r}: {value!r} is not a number") from None
-    integral = {k: int(v) if Limits.model_fields[k].annotation is int else v for k, v in values.items()}
-    try:
-        return Limits(**integral)
-    except ValidationError as exc:
-        raise SlamfrontError(f"${LIMITS_ENV}: {exc.errors()[0]['loc'][0]}: {exc.errors()[0]['msg']}") from None
+        if not number > 0:
+            raise SlamfrontError(f"${LIMITS_ENV}: {name}: must be greater than 0, got {value}")
+        values[name] = int(number) if isinstance(kinds[name], int) else number
+    return Limits()._replace(**values)
 
 
 def over_limit(name: str, value: float, what: str) -> str | None:

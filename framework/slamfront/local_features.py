@@ -18,9 +18,12 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Annotated, Literal
 
-import cv2
 import numpy as np
 from pydantic import BeforeValidator
+
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import OpenCV
 
 DescriptorType = Literal["sift", "rootsift", "orb", "brisk", "akaze", "kaze", "brief", "freak"]
 DetectorType = Literal["native", "fast", "agast", "gftt", "orb", "sift", "brisk"]

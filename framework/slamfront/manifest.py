@@ -19,15 +19,10 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
-import zipfile
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote, urlparse
-
-from tqdm import tqdm
 
 from slamfront.data import MIRROR_ENV  # noqa: F401  (re-exported: the manifest's mirror variable)
 from slamfront.datasets import download, sha256_of
@@ -96,6 +91,14 @@ def load_manifest(path: Path | None = None) -> list[PinnedDataset]:
     ]
 
 
+def dataset_summaries(path: Path | None = None) -> list[tuple[str, str, int, int, str]]:
+    """(name, folder, files, bytes, licence) of each dataset of a manifest, without building
+    its file records (``slamfront datasets`` lists 7,000 files' worth in a few ms)."""
+    raw = json.loads((path or MANIFEST).read_text())
+    return [(d["name"], d["folder"], len(d["files"]), sum(f[1] for f in d["files"]), d["licence"])
+            for d in raw["datasets"]]
+
+
 def _matches(path: Path, file: PinnedFile) -> bool:
     return path.is_file() and path.stat().st_size == file.size and sha256_of(path) == file.sha256
 
@@ -128,6 +131,8 @@ def fetch_dataset(
     todo = dataset.damaged(root)
     if not todo:
         return 0
+    from tqdm import tqdm  # not at import: listing the manifest needs no progress bar
+
     folder = root / dataset.folder
     with tqdm(total=sum(f.size for f in todo), unit="B", unit_scale=True, desc=dataset.name,
               disable=None if progress is None else not progress) as bar:
@@ -142,6 +147,8 @@ def _fetch_files(
     dataset: PinnedDataset, todo: list[PinnedFile], folder: Path, mirror: str | None, timeout: float,
     advance: Callable[[int], None],
 ) -> None:
+    from concurrent.futures import ThreadPoolExecutor  # not at import: listing the manifest needs none
+
     def one(file: PinnedFile) -> None:
         target = folder / file.path
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -169,6 +176,9 @@ def _fetch_from_archive(
     advance: Callable[[int], None],
 ) -> None:
     """Download the dataset's archive (resumable) beside its folder, take the files from it, delete it."""
+    import tempfile
+    import zipfile
+
     archive = root / f".{dataset.name}{Path(urlparse(dataset.origin).path).suffix}"
     archive.parent.mkdir(parents=True, exist_ok=True)
     if not archive.exists():

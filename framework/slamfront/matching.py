@@ -18,12 +18,14 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import Field
 
 from slamfront.errors import PluginError
+from slamfront.lazy import lazy_module
 from slamfront.plugin import PluginConfig
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import OpenCV
 
 Geometry = Literal["fundamental", "homography", "none"]
 
@@ -47,7 +49,7 @@ DEFAULT_MAX_DISTANCE = MappingProxyType(
     }
 )
 
-_NORMS = MappingProxyType({"l2": cv2.NORM_L2, "hamming": cv2.NORM_HAMMING})
+_NORMS = MappingProxyType({"l2": "NORM_L2", "hamming": "NORM_HAMMING"})  # cv2 names: OpenCV loads on first use
 _MIN_POINTS = MappingProxyType({"fundamental": 8, "homography": 4, "none": 1})
 
 
@@ -120,7 +122,7 @@ class Matcher:
         self.config = config
         self.metric = metric
         self.max_distance = max_distance
-        self._matcher = cv2.BFMatcher(_NORMS[metric], crossCheck=config.cross_check and config.ratio is None)
+        self._matcher = cv2.BFMatcher(getattr(cv2, _NORMS[metric]), crossCheck=config.cross_check and config.ratio is None)
 
     def putative(self, descriptors_a: np.ndarray, descriptors_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Brute-force nearest neighbours A -> B under the threshold: ((K, 2) pairs, (K,) distances)."""

@@ -8,6 +8,7 @@ as YAML, so ``--set loop_detector.params.threshold=0.3`` gives a float).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +18,16 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from slamfront.data import data_root
-from slamfront.errors import PluginError, RecipeError, SlamfrontError
-from slamfront.limits import check_limit, current_limits, over_limit
+from slamfront.errors import PluginError, RecipeError
+from slamfront.limits import check_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
 from slamfront.registry import PluginRegistry
 from slamfront.resources import shipped_dir
 from slamfront.suggest import did_you_mean, model_keys_at
 from slamfront.text import shorten
+from slamfront.yamlfile import _bounded_yaml, load_yaml, read_yaml_mapping  # noqa: F401 (re-exported)
+
+logger = logging.getLogger(__name__)
 
 LogLevel = Literal["debug", "info", "warning", "error"]
 
@@ -146,94 +150,6 @@ def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str
 def find_recipe(name_or_path: str | Path) -> Path:
     """A recipe file: a path as given, or the name of a shipped recipe (``demo``)."""
     return find_named_file(name_or_path, recipes_dir(), "recipe", "shipped recipes: `slamfront recipes`")
-
-
-def _expanded_nodes(data: Any, limit: int) -> int | None:
-    """Nodes of ``data`` counting every alias as a copy of what it names, stopping past
-    ``limit``; None when an alias refers to a node that contains it (a cycle).
-
-    PyYAML shares one object between an anchor and its aliases, so a few hundred bytes
-    parse into a small graph that is a huge tree: anything that walks it as a tree
-    (validation, copies, error messages) would expand it.
-    """
-    sizes: dict[int, int] = {}
-    ancestors: set[int] = set()
-    stack: list[tuple[Any, bool]] = [(data, False)]
-    while stack:
-        node, leaving = stack.pop()
-        children = list(node.values()) if isinstance(node, dict) else node if isinstance(node, list) else None
-        if children is None:
-            continue
-        key = id(node)
-        if leaving:
-            ancestors.discard(key)
-            sizes[key] = 1 + sum(sizes.get(id(child), 1) for child in children)
-            if sizes[key] > limit:
-                return sizes[key]
-            continue
-        if key in sizes:
-            continue
-        if key in ancestors:
-            return None
-        ancestors.add(key)
-        stack.append((node, True))
-        stack.extend((child, False) for child in children)
-    return sizes.get(id(data), 1)
-
-
-def _bounded_yaml(text: str) -> Any:
-    """``yaml.safe_load`` with what a hostile document can cost bounded.
-
-    :raises ValueError: the reason, short (with ``:LINE`` first when known).
-    """
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f":{mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"{line}: not valid YAML: {shorten(str(getattr(exc, 'problem', None) or exc))}") from None
-    except RecursionError:
-        raise ValueError(": not valid YAML: nested too deeply") from None
-    limit = current_limits().yaml_nodes
-    nodes = _expanded_nodes(data, limit)
-    if nodes is None:
-        raise ValueError(": an alias refers to a node that contains it (a recursive document)")
-    if nodes > limit:
-        raise ValueError(f": {over_limit('yaml_nodes', nodes, 'the number of nodes with aliases expanded')}")
-    return data
-
-
-def load_yaml(text: str, where: str, error: type[SlamfrontError] = RecipeError) -> Any:
-    """Parse YAML with aliases bounded to ``yaml_nodes`` expanded nodes
-    (:mod:`slamfront.limits`), recursive aliases and absurd nesting refused, and short
-    error messages.
-
-    :param where: the file (or other origin) named in errors.
-    :raises SlamfrontError: of type ``error``, one line naming ``where``.
-    """
-    try:
-        return _bounded_yaml(text)
-    except ValueError as exc:
-        raise error(f"{where}{exc}") from None
-
-
-def read_yaml_mapping(path: Path, what: str = "recipe") -> dict[str, Any]:
-    """Parse a YAML file that must hold a mapping, with the file (and line) named in any error."""
-    try:
-        size = path.stat().st_size
-        problem = over_limit("text_bytes", size, "its size in bytes")
-        if problem:
-            raise RecipeError(f"{path}: {problem}")
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RecipeError(f"{path}: cannot read {what}: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise RecipeError(f"{path}: a {what} must be UTF-8 text (byte {exc.start} is not)") from None
-    raw = load_yaml(text, str(path))
-    if not isinstance(raw, dict):
-        raise RecipeError(f"{path}: a {what} must be a YAML mapping, got {type(raw).__name__}")
-    raw.setdefault("name", path.stem)
-    return raw
 
 
 def read_recipe_dict(path: Path) -> dict[str, Any]:
@@ -416,6 +332,8 @@ def build_pipeline(
     """
     registry = registry or PluginRegistry()
     configs = validate_stage_params(recipe, origin, registry, data)
+    for problem in registry.broken:  # every plugin this recipe names was found: the broken ones are not its
+        logger.warning("%s (%s does not use it)", problem, origin)
     plugins: dict[Kind, Plugin] = {
         kind: source if kind == "source" and source is not None else cls(config)
         for kind, (cls, config) in configs.items()

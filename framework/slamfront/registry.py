@@ -81,6 +81,10 @@ class PluginRegistry:
     ) -> None:
         self.skipped: list[str] = []
         """Plugins left out because their declaration is invalid, each as ``module: why``."""
+        self.broken: list[str] = []
+        """Installed plugin packages whose entry point cannot be imported, one line each (naming
+        the package and why). Their plugins are unknown: a recipe that uses one fails (the
+        error lists these), one that does not runs with a warning, ``slamfront plugins`` fails."""
         self._plugins: dict[tuple[Kind, str], PluginInfo] = {}
         self._distributions: dict[str, tuple[str, str]] = {}  # module name -> (distribution, version)
         self._manager = pluggy.PluginManager(hookspecs.PROJECT)
@@ -101,7 +105,9 @@ class PluginRegistry:
 
     def _load_entry_points(self) -> None:
         """Every module of the ``slamfront`` entry-point group, each checked like a local one
-        (pluggy's own loader would stop at the first bad module with a multi-line message)."""
+        (pluggy's own loader would stop at the first bad module with a multi-line message).
+        One that cannot be imported (a missing dependency, a module removed) goes to
+        :attr:`broken` instead of stopping everything."""
         for entry_point in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
             dist = entry_point.dist
             owner = f"{dist.name} {dist.version}" if dist is not None else "an unknown distribution"
@@ -110,10 +116,11 @@ class PluginRegistry:
             try:
                 module = entry_point.load()
             except Exception as exc:  # noqa: BLE001 - any import-time failure of a third-party module
-                raise PluginError(
+                self.broken.append(
                     f"entry point {entry_point.name!r} of {owner} ({entry_point.value}) cannot be imported: "
                     f"{type(exc).__name__}: {exc}"
-                ) from exc
+                )
+                continue
             self._register(module, name=entry_point.name, owner=owner)
             if dist is not None:
                 self._distributions[module.__name__] = (dist.name, dist.version)
@@ -196,7 +203,8 @@ class PluginRegistry:
         except KeyError:
             hint = did_you_mean(name, self.names(kind), f"{kind} plugins")
             skipped = f" (skipped as invalid: {'; '.join(self.skipped)})" if self.skipped else ""
-            raise PluginError(f"unknown {kind} plugin {name!r}; {hint}{skipped}") from None
+            broken = f"; it may come from a plugin package that is broken: {'; '.join(self.broken)}" if self.broken else ""
+            raise PluginError(f"unknown {kind} plugin {name!r}; {hint}{skipped}{broken}") from None
 
     def all(self, kind: Kind | None = None) -> list[PluginInfo]:
         """Every plugin (of one kind), ordered by kind then name."""

@@ -19,7 +19,9 @@ from pydantic import BaseModel
 def did_you_mean(name: str, known: Iterable[str], what: str = "names") -> str:
     """``did you mean 'x'?`` (up to three close names), else ``known <what>: a, b, c``."""
     known = sorted(set(known))
-    close = difflib.get_close_matches(name, known, n=3, cutoff=0.5)
+    # 0.6 (difflib's default): at 0.5 a short name shares enough letters with anything
+    # (`treshold` was "did you mean 'rho'?"); a typo of a name stays above 0.8
+    close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
     # a key typed short (`frames` for `frames_per_traversal`) is too far for difflib
     close += [k for k in known if len(name) >= 3 and name in k and k not in close][: 3 - len(close)]
     if close:

@@ -14,13 +14,12 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from slamfront.data import DATA_ENV, MIRROR_ENV, data_root, download_root, user_data_dir
+from slamfront.data import DATA_ENV, MIRROR_ENV, data_root, download_root
 from slamfront.errors import DataError
 
 if TYPE_CHECKING:  # the rest is imported when the command runs: its parser stays light
     from slamfront.datasets import DatasetDownload
     from slamfront.manifest import PinnedDataset, PinnedFile
-    from slamfront.registry import PluginRegistry
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -32,8 +31,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "datasets the tests read; `path` prints the data root (or where NAME is); `download NAME` fetches "
             "a source's dataset (official URL, resumable, checksum); `fetch --for-tests` fetches the pinned "
             "datasets missing from the data root, file by file, each checked against its SHA-256. "
-            f"The data root is ${DATA_ENV}, else shared/data beside a source checkout, else {user_data_dir()}; "
-            f"downloads go to ${DATA_ENV}, else {user_data_dir()}."
+            f"The data root is ${DATA_ENV}, else shared/data beside a source checkout, else the per-user data "
+            f"directory (~/.local/share/slamfront on Linux); downloads go to ${DATA_ENV}, else the per-user data "
+            "directory. `slamfront datasets path` prints the data root, `slamfront datasets` both folders."
         ),
     )
     parser.add_argument(
@@ -53,26 +53,74 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=run)
 
 
-def catalogue(registry: PluginRegistry | None = None) -> dict[str, tuple[str, DatasetDownload]]:
-    """Every dataset the installed sources declare: ``{name: (source plugin, download)}``."""
-    from slamfront.registry import PluginRegistry
+DATASETS_GROUP = "slamfront.datasets"
+"""The entry-point group listing the public datasets of installed sources (see pyproject.toml)."""
+
+
+def catalogue() -> dict[str, tuple[str, DatasetDownload]]:
+    """Every dataset the installed sources declare: ``{name: (source plugin, download)}``.
+
+    Read from the ``slamfront.datasets`` entry-point group, whose modules hold only the
+    records: listing them imports no source. A module that cannot be imported is one
+    warning line naming it; the others are still listed.
+    """
+    import importlib
 
     found: dict[str, tuple[str, DatasetDownload]] = {}
-    for info in (registry or PluginRegistry()).all("source"):
-        for spec in getattr(info.cls, "downloads", ()):
-            found[spec.name] = (info.name, spec)
+    for name, value, owner in _dataset_entry_points():
+        try:
+            module, _, attribute = value.partition(":")  # `module` (its DOWNLOADS) or `module:mapping`
+            declared = getattr(importlib.import_module(module), attribute.strip() or "DOWNLOADS")
+        except Exception as exc:  # noqa: BLE001 - a broken third-party module must not hide the others
+            print(f"slamfront: warning: {DATASETS_GROUP} entry point {name!r} of {owner} ({value}) "
+                  f"cannot be read: {type(exc).__name__}: {exc}", file=sys.stderr)
+            continue
+        for source, downloads in declared.items():
+            for spec in downloads:
+                found[spec.name] = (source, spec)
     return found
 
 
-def run(args: argparse.Namespace) -> int:
-    from slamfront.datasets import fetch
-    from slamfront.suggest import did_you_mean
+def _dataset_entry_points() -> list[tuple[str, str, str]]:
+    """(name, value, distribution) of each entry point of the group.
 
+    Read from the ``entry_points.txt`` of the distributions on ``sys.path`` (what
+    :mod:`importlib.metadata` reads too), because importing that module costs as much as
+    starting Python; through it when the scan finds none (an unusual installation).
+    """
+    import configparser
+
+    points = []
+    for folder in dict.fromkeys(sys.path):
+        try:
+            entries = [e for e in os.scandir(folder or ".") if e.name.endswith((".dist-info", ".egg-info"))]
+        except OSError:
+            continue
+        for entry in entries:
+            text = Path(entry.path, "entry_points.txt")
+            if not text.is_file() or f"[{DATASETS_GROUP}]" not in (content := text.read_text(errors="replace")):
+                continue
+            parser = configparser.ConfigParser(delimiters=("=",), interpolation=None)
+            parser.optionxform = str  # type: ignore[assignment,method-assign]
+            parser.read_string(content)
+            owner = entry.name.rsplit(".", 1)[0].replace("-", " ", 1)
+            points += [(name, value.strip(), owner) for name, value in parser.items(DATASETS_GROUP)]
+    if points:
+        return points
+    from importlib.metadata import entry_points
+
+    return [(e.name, e.value, f"{e.dist.name} {e.dist.version}" if e.dist else "?") for e in
+            entry_points(group=DATASETS_GROUP)]
+
+
+def run(args: argparse.Namespace) -> int:
     if args.action == "fetch":
         return _fetch(args)
     if args.action == "path" and not args.names:
         print(data_root())
         return 0
+    from slamfront.datasets import fetch
+
     datasets = catalogue()
     into = args.dir or download_root()
     if args.action == "list":
@@ -81,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"`slamfront datasets {args.action}` needs one dataset name: {', '.join(sorted(datasets))}")
     name = args.names[0]
     if name not in datasets:
+        from slamfront.suggest import did_you_mean
+
         raise DataError(f"unknown dataset {name!r}; {did_you_mean(name, datasets, 'datasets')}")
     source, spec = datasets[name]
     if args.action == "path":
@@ -93,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
-    from slamfront.manifest import load_manifest
+    from slamfront.manifest import dataset_summaries
 
     width = max((len(n) for n in datasets), default=4)
     print("Public datasets the sources read (`slamfront datasets download NAME`):")
@@ -105,11 +155,11 @@ def _list(datasets: dict[str, tuple[str, DatasetDownload]], into: Path) -> int:
         else:
             state = "manual download" if spec.url is None else "not downloaded"
         print(f"  {name:<{width}}  source: {source:<14} {state:<15} {spec.title}")
-    pinned = load_manifest()
-    width = max(len(d.name) for d in pinned)
+    pinned = dataset_summaries()
+    width = max(len(name) for name, *_ in pinned)
     print("\nPinned datasets the tests read (`slamfront datasets fetch --for-tests`):")
-    for dataset in pinned:
-        print(f"  {dataset.name:<{width}}  {dataset.folder:<28} {dataset.size / 1e6:6.1f} MB  {dataset.licence}")
+    for name, folder, _, size, licence in pinned:
+        print(f"  {name:<{width}}  {folder:<28} {size / 1e6:6.1f} MB  {licence}")
     print(f"\ndata root: {data_root()}\ndownloads: {into}")
     return 0
 

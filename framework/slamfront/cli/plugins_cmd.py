@@ -25,6 +25,8 @@ def run(args: argparse.Namespace) -> int:
 
     registry = PluginRegistry(modules=args.plugin_module)
     infos = registry.all(args.kind)
+    for problem in registry.broken:  # an installed package's plugins are missing: an error here, at least
+        print(f"slamfront: error: {problem}", file=sys.stderr)
     if args.json:
         for problem in registry.skipped:  # stdout stays one JSON document
             print(f"slamfront: warning: invalid plugin skipped: {problem}", file=sys.stderr)
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             ],
             indent=2,
         ))
-        return 0
+        return 2 if registry.broken else 0
     if registry.skipped:  # first, where the author of the plugin looks
         print("invalid plugins, skipped (fix these to use them):")
         for problem in registry.skipped:
@@ -64,4 +66,4 @@ def run(args: argparse.Namespace) -> int:
             else:
                 shown = repr(field.default if field.default_factory is None else field.default_factory())
             print(f"  {'':<{width}}    {field_name} = {shown}  {field.description or ''}".rstrip())
-    return 0
+    return 2 if registry.broken else 0

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from slamfront.cli.arguments import frame_count
 from slamfront.cli.completion import complete_overrides, complete_recipes
 from slamfront.outputs import safe_name
+from slamfront.report.headline import headline
 from slamfront.text import shorten
 
 if TYPE_CHECKING:
@@ -85,17 +86,5 @@ def print_outcome(result: RunResult) -> None:
     print(f"log:     {result.log_path}")
     print(f"report:  {result.html_path or result.report_path}")
     print(f"metrics: {result.metrics_path}")
-    if isinstance(metrics.get("ate_rmse_before_m"), float) and isinstance(metrics.get("ate_rmse_after_m"), float):
-        print(f"  ATE before -> after optimisation: {metrics['ate_rmse_before_m']:.3g} m -> "
-              f"{metrics['ate_rmse_after_m']:.3g} m")
-    if isinstance(metrics.get("drift_before_percent"), float) and isinstance(metrics.get("drift_after_percent"), float):
-        print(f"  drift at the last frame: {metrics['drift_before_m']:.3g} m -> {metrics['drift_after_m']:.3g} m "
-              f"({metrics['drift_before_percent']:.2g} % -> {metrics['drift_after_percent']:.2g} % of the distance)")
-    shown = [
-        k for k in ("recall_at_100p", "auc_pr", "n_loop_constraints_added", "n_loop_constraints_added_false",
-                    "ate_rmse_m", "rpe_rmse_m", "n_frames", "frames_per_second")
-        if k in metrics
-    ]
-    for key in shown:
-        value = metrics[key]
-        print(f"  {key} = {value:.4g}" if isinstance(value, float) else f"  {key} = {value}")
+    for sentence in headline(metrics):
+        print(f"  {sentence}")

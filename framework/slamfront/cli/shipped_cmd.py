@@ -36,13 +36,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def print_listing(paths: list[Path], what: str) -> None:
-    """One line per file: its stem and the first line of its ``description``."""
-    from slamfront.recipe import read_yaml_mapping  # pydantic and the plugins: not for the parser
+    """One line per file: its stem and the start of its ``description`` (cut at a word, ~100 characters)."""
+    from slamfront.yamlfile import read_yaml_mapping  # PyYAML only: no pydantic, no plugins
 
     width = max((len(p.stem) for p in paths), default=4)
     for path in paths:
-        description = str(read_yaml_mapping(path, what).get("description", "")).strip().splitlines()
-        print(f"{path.stem:<{width}}  {description[0] if description else ''}")
+        description = " ".join(str(read_yaml_mapping(path, what).get("description", "")).split())
+        if len(description) > 100:  # cut at a word
+            description = description[:97].rsplit(" ", 1)[0] + " ..."
+        print(f"{path.stem:<{width}}  {description}")
 
 
 def run_listing(args: argparse.Namespace) -> int:

@@ -19,7 +19,6 @@ probability that the answer is right on data like the calibration data).
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize
 
 from slamfront.core.errors import CoreError
 
@@ -88,6 +87,8 @@ def fit_logistic(features: np.ndarray, labels: np.ndarray, l2: float = 1e-3) -> 
         residual = 0.5 * (1.0 + np.tanh(0.5 * z)) - y
         gradient = np.r_[x.T @ residual / len(y) + 2.0 * l2 * theta[:-1], residual.mean()]
         return float(value), gradient
+
+    from scipy.optimize import minimize  # ~0.5 s to import: only when a confidence is fitted
 
     result = minimize(loss, np.zeros(x.shape[1] + 1), jac=True, method="L-BFGS-B")
     return result.x[:-1], float(result.x[-1])

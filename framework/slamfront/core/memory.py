@@ -57,7 +57,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import nnls
 
 from slamfront.core.errors import CoreError
 
@@ -130,6 +129,8 @@ class LinearTimeModel:
         y = np.asarray(seconds, float)
         scale = np.abs(x).max(axis=0)
         scale[scale == 0] = 1.0
+        from scipy.optimize import nnls  # ~0.5 s to import: only when a cost model is fitted
+
         coefficients, _ = nnls(x / scale, y)
         coefficients = coefficients / scale
         residual = y - x @ coefficients

@@ -22,7 +22,6 @@ array, in chunks that bound memory.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from slamfront.core.errors import CoreError
 
@@ -50,6 +49,8 @@ def hybrid_neighbours(points: np.ndarray, radius: float, max_nn: int) -> np.ndar
     if len(points) == 0:
         return np.empty((0, max_nn), dtype=np.int64)
     k = min(max_nn, len(points))
+    from scipy.spatial import cKDTree  # ~0.7 s to import: when clouds are registered, not when listed
+
     _, index = cKDTree(points).query(points, k=k, distance_upper_bound=radius, workers=-1)
     index = np.asarray(index, dtype=np.int64).reshape(len(points), k)
     index[index >= len(points)] = -1

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import functools
 
-import cv2
 import numpy as np
+
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 
 def patch_normalise(image: np.ndarray, patch: int) -> np.ndarray:

@@ -194,28 +194,36 @@ class LoopClosureEvaluation(Evaluation):
         return EvaluationReport(self.title, metrics=metrics, markdown=markdown, figures=figures)
 
     def _search_space(self, context: EvaluationContext) -> dict[str, int]:
-        """Rodrigues 2019 Table 4.4. Detectors without places search every frame: places = frames."""
+        """Rodrigues 2019 Table 4.4. Detectors without places search every frame: places = frames.
+
+        A stream (one traversal that revisits itself) has no reference and query halves: its
+        frames and places are counted as the stream's, never as a reference of 0 frames.
+        """
         n_reference = sum(1 for t, _ in self._sequence_index.values() if t == "reference")
-        n_query = sum(1 for t, _ in self._sequence_index.values() if t in ("query", "stream"))
+        n_query = sum(1 for t, _ in self._sequence_index.values() if t == "query")
+        n_stream = sum(1 for t, _ in self._sequence_index.values() if t == "stream")
         answered = sum(1 for r in self._results.values() if r.match >= 0)
+        if n_stream and not n_reference:
+            return {"n_frames_stream": n_stream, "n_places_stream": n_stream, "n_searches": answered}
         return {
             "n_frames_reference": n_reference,
-            "n_frames_query": n_query,
+            "n_frames_query": n_query + n_stream,
             "n_places_reference": n_reference,
-            "n_places_query": n_query,
+            "n_places_query": n_query + n_stream,
             "n_searches": answered,
         }
 
     @staticmethod
     def _search_space_table(space: dict[str, int]) -> str:
-        return "\n".join([
-            "Search space (Rodrigues 2019 Table 4.4):",
-            "",
-            "| frames per traversal (ref / query) | reference places | query places | searches for a loop |",
-            "| --- | --- | --- | --- |",
-            f"| {space['n_frames_reference']} / {space['n_frames_query']} | {space['n_places_reference']} | "
-            f"{space['n_places_query']} | {space['n_searches']} |",
-        ])
+        if "n_frames_stream" in space:
+            header = "| frames in the stream | places | searches for a loop |"
+            row = f"| {space['n_frames_stream']} | {space['n_places_stream']} | {space['n_searches']} |"
+        else:
+            header = "| frames per traversal (ref / query) | reference places | query places | searches for a loop |"
+            row = (f"| {space['n_frames_reference']} / {space['n_frames_query']} | {space['n_places_reference']} | "
+                   f"{space['n_places_query']} | {space['n_searches']} |")
+        rule = "|" + " --- |" * (header.count("|") - 1)
+        return "\n".join(["Search space (Rodrigues 2019 Table 4.4):", "", header, rule, row])
 
     def _plots(self, context, curves, main: _Scores, truth: LoopGroundTruth, metrics) -> list[str]:  # type: ignore[no-untyped-def]
         curve = main.curve

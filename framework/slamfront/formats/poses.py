@@ -19,6 +19,7 @@ import numpy as np
 from slamfront.core.errors import CoreError
 from slamfront.core.geometry import pose_from_quaternion, poses_from_quaternions, quaternions_of
 from slamfront.errors import DataError
+from slamfront.outputs import write_atomically
 
 
 @dataclass(frozen=True)
@@ -139,11 +140,11 @@ def read_redwood_log(path: Path) -> Trajectory:
 
 
 def write_tum(path: Path, trajectory: Trajectory) -> Path:
-    """Write ``t tx ty tz qx qy qz qw`` lines (full float precision)."""
+    """Write ``t tx ty tz qx qy qz qw`` lines (full float precision), atomically and never
+    through a link at ``path`` (:func:`slamfront.outputs.write_atomically`)."""
     table = np.column_stack([trajectory.timestamps, trajectory.poses[:, :3, 3], quaternions_of(trajectory.poses)])
     lines = (" ".join(map(repr, row)) for row in table.tolist())
-    Path(path).write_text("\n".join(lines) + "\n")
-    return Path(path)
+    return write_atomically(Path(path), "\n".join(lines) + "\n")
 
 
 TRAJECTORY_READERS: Mapping[str, Callable[[Path], Trajectory]] = MappingProxyType(

@@ -6,7 +6,6 @@ the camera of the current frame (x right, y down, z forward, as OpenCV).
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.Color_pb2 import Color
@@ -30,6 +29,9 @@ from slamfront import imageio
 from slamfront.errors import DataError
 from slamfront.frame import Camera
 from slamfront.limits import over_limit
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 MAP_FRAME = "map"
 CAMERA_FRAME = "camera"

@@ -18,7 +18,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import gtsam
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -26,7 +25,10 @@ from slamfront.core import geometry
 from slamfront.core.errors import CoreError
 from slamfront.core.posegraph import PoseGraph, check_connected, initial_poses, spanning_tree
 from slamfront.errors import DataError
+from slamfront.lazy import lazy_module
 from slamfront.posegraph.kernels import KERNELS, KernelName
+
+gtsam = lazy_module("gtsam")  # loads on first use: listing plugins does not import it
 
 _ROTATION_FIRST = np.array([3, 4, 5, 0, 1, 2])
 """GTSAM's Pose3 tangent is (rx, ry, rz, x, y, z); graphs store translation first."""

@@ -1,27 +1,41 @@
 """``report.html``: a report as one self-contained page a browser opens.
 
 The Markdown reports (a run's ``report.md``, a campaign's ``report.md``, a comparison's
-``comparison.md``) are written by slamfront itself, in a small subset of Markdown:
-headings, pipe tables, fenced code, bullet lists, paragraphs, images on a line of their
-own, and inline code, bold and links. :func:`markdown_to_html` converts exactly that
-subset, so no Markdown library is needed. :func:`write_html` writes the page beside the
-Markdown file: the plots inlined as ``data:`` URIs (the file can be mailed or moved on
-its own), a contents list of the sections, and links to other reports (``.md``) pointed
-at their ``.html`` twins. A figure that is missing becomes a note, never a broken image.
+``comparison.md``) become HTML through markdown-it-py (CommonMark with tables; raw HTML in
+the text is escaped, never passed through) and a Jinja2 page template. Three things are
+slamfront's own, as render rules: figures are inlined as ``data:`` URIs (the file can be
+mailed or moved on its own) and a figure that is missing becomes a note, never a broken
+image; a link to another report (``.md``) points at its ``.html`` twin when there is one;
+headings get ids, and the page opens with a contents list of its sections.
 """
 
 from __future__ import annotations
 
 import base64
-import html
 import re
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+from jinja2 import Environment
+from markdown_it import MarkdownIt
+from markdown_it.renderer import RendererHTML
+from markdown_it.token import Token
+from markdown_it.utils import EnvType, OptionsDict
+from markupsafe import Markup
 
 from slamfront.outputs import write_atomically
 
 _MIME = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".svg": "image/svg+xml"}
 
-_STYLE = """
+_PAGE = Environment(autoescape=True, keep_trailing_newline=True).from_string("""<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<link rel="icon" href="data:,">
+<title>{{ title }}</title>
+<style>
 body { font: 15px/1.45 system-ui, -apple-system, "Segoe UI", sans-serif; color: #1d232a; margin: 0 auto;
        max-width: 1100px; padding: 1.5em 2em 4em; }
 h1 { font-size: 1.7em; margin-bottom: .2em; } h2 { border-bottom: 1px solid #d8dee4; padding-bottom: .2em;
@@ -38,14 +52,16 @@ figcaption { color: #57606a; font-size: 12px; }
 nav.contents { background: #f6f8fa; border: 1px solid #d8dee4; border-radius: 4px; padding: .4em 1em;
                margin: 1em 0; font-size: 13px; } nav.contents a { margin-right: 1em; }
 .missing { color: #9a6700; }
-"""
-
-_IMAGE_LINE = re.compile(r"^!\[(?P<alt>[^\]]*)\]\((?P<src>[^)\s]+)\)$")
-_INLINE_IMAGE = re.compile(r"!\[(?P<alt>[^\]]*)\]\((?P<src>[^)\s]+)\)")
-_LINK = re.compile(r"\[(?P<text>[^\]]+)\]\((?P<href>[^)\s]+)\)")
-_CODE = re.compile(r"`([^`]+)`")
-_BOLD = re.compile(r"\*\*(.+?)\*\*")
-_TABLE_RULE = re.compile(r"^\|?\s*:?-{3,}:?\s*(\|\s*:?-{3,}:?\s*)*\|?$")
+</style>
+</head>
+<body>
+{{ opening }}
+{%- if sections|length > 1 %}
+<nav class="contents">Contents:{% for anchor, label in sections %} <a href="#{{ anchor }}">{{ label }}</a>{% endfor %}</nav>
+{%- endif %}
+{{ rest }}</body>
+</html>
+""")
 
 
 def write_html(markdown_path: Path, title: str | None = None) -> Path:
@@ -61,83 +77,43 @@ def write_html(markdown_path: Path, title: str | None = None) -> Path:
 
 
 def render_page(markdown: str, folder: Path, title: str) -> str:
-    """The whole page: head with the style, the contents list, the converted body."""
-    body = markdown_to_html(markdown, folder)
-    sections = re.findall(r'<h2 id="([^"]+)">(.*?)</h2>', body)
-    contents = ""
-    if len(sections) > 1:
-        links = " ".join(f'<a href="#{anchor}">{label}</a>' for anchor, label in sections)
-        contents = f'<nav class="contents">Contents: {links}</nav>\n'
-    # the contents go right after the title and its first paragraphs, before the first section
-    first_section = body.find("<h2")
-    if first_section >= 0:
-        body = body[:first_section] + contents + body[first_section:]
-    return (
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-        '<link rel="icon" href="data:,">\n'  # no favicon request: a file:// page has nothing to fetch
-        f"<title>{html.escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n{body}</body>\n</html>\n"
+    """The whole page: the contents list after the title and its first paragraphs, before the first section."""
+    parser = _parser()
+    env: dict[str, Any] = {"folder": folder, "anchors": set()}
+    tokens = parser.parse(markdown, env)
+    first = next((i for i, t in enumerate(tokens) if t.type == "heading_open" and t.tag == "h2"), len(tokens))
+    sections = [(t.attrs["id"], tokens[i + 1].content) for i, t in enumerate(tokens)
+                if t.type == "heading_open" and t.tag == "h2"]
+    return _PAGE.render(
+        title=title, sections=sections,
+        opening=Markup(parser.renderer.render(tokens[:first], parser.options, env)),
+        rest=Markup(parser.renderer.render(tokens[first:], parser.options, env)),
     )
 
 
 def markdown_to_html(markdown: str, folder: Path) -> str:
-    """Convert slamfront's Markdown subset to HTML; images and links resolve against ``folder``."""
-    out: list[str] = []
-    lines = markdown.splitlines()
-    anchors: set[str] = set()
-    k = 0
-    while k < len(lines):
-        line = lines[k]
-        stripped = line.strip()
-        if not stripped:
-            k += 1
-        elif stripped.startswith("```"):
-            language = stripped[3:].strip()
-            end = next((j for j in range(k + 1, len(lines)) if lines[j].strip().startswith("```")), len(lines))
-            code = html.escape("\n".join(lines[k + 1 : end]))
-            attribute = f' class="language-{html.escape(language)}"' if language else ""
-            out.append(f"<pre><code{attribute}>{code}</code></pre>")
-            k = end + 1
-        elif re.match(r"^#{1,6} ", stripped):
-            level = len(stripped) - len(stripped.lstrip("#"))
-            content = stripped[level:].strip()
-            anchor = _anchor(content, anchors)
-            out.append(f'<h{level} id="{anchor}">{_inline(content, folder)}</h{level}>')
-            k += 1
-        elif stripped.startswith("|") and k + 1 < len(lines) and _TABLE_RULE.match(lines[k + 1].strip()):
-            end = k + 2
-            while end < len(lines) and lines[end].strip().startswith("|"):
-                end += 1
-            out.append(_table(lines[k], lines[k + 2 : end], folder))
-            k = end
-        elif _IMAGE_LINE.match(stripped):
-            match = _IMAGE_LINE.match(stripped)
-            assert match is not None
-            out.append(_figure(match["alt"], match["src"], folder))
-            k += 1
-        elif stripped.startswith("- "):
-            items = []
-            while k < len(lines) and lines[k].strip().startswith("- "):
-                items.append(f"<li>{_inline(lines[k].strip()[2:], folder)}</li>")
-                k += 1
-            out.append("<ul>" + "".join(items) + "</ul>")
-        else:
-            paragraph = [stripped]  # at least this line (a lone "|..." without a rule is text)
-            k += 1
-            while k < len(lines) and lines[k].strip() and not _starts_block(lines, k):
-                paragraph.append(lines[k].strip())
-                k += 1
-            out.append(f"<p>{_inline(' '.join(paragraph), folder)}</p>")
-    return "\n".join(out) + "\n"
+    """The body of a page: images and links resolve against ``folder``."""
+    return _parser().render(markdown, {"folder": folder, "anchors": set()})
 
 
-def _starts_block(lines: list[str], k: int) -> bool:
-    stripped = lines[k].strip()
-    return (
-        stripped.startswith(("```", "- ", "|"))
-        or bool(re.match(r"^#{1,6} ", stripped))
-        or bool(_IMAGE_LINE.match(stripped))
-    )
+def _parser() -> MarkdownIt:
+    parser = MarkdownIt("commonmark", {"html": False}).enable("table")
+    parser.core.ruler.push("slamfront_anchors_and_figures", _anchors_and_figures)
+    parser.add_render_rule("image", _image)
+    parser.add_render_rule("link_open", _link_open)
+    return parser
+
+
+def _anchors_and_figures(state: Any) -> None:
+    """Give every heading an id; mark paragraphs that hold one image only as figures."""
+    tokens: list[Token] = state.tokens
+    for i, token in enumerate(tokens):
+        if token.type == "heading_open":
+            token.attrSet("id", _anchor(tokens[i + 1].content, state.env["anchors"]))
+        elif (token.type == "paragraph_open" and i + 2 < len(tokens) and tokens[i + 1].children
+              and [c.type for c in tokens[i + 1].children] == ["image"]):
+            token.hidden = tokens[i + 2].hidden = True  # no <p> around the <figure>
+            tokens[i + 1].children[0].meta["figure"] = True
 
 
 def _anchor(text: str, taken: set[str]) -> str:
@@ -149,18 +125,25 @@ def _anchor(text: str, taken: set[str]) -> str:
     return anchor
 
 
-def _cells(row: str) -> list[str]:
-    """A table row's cells; ``\\|`` is a literal bar inside a cell."""
-    inner = row.strip()
-    inner = inner[1:] if inner.startswith("|") else inner
-    inner = inner[:-1] if inner.endswith("|") and not inner.endswith("\\|") else inner
-    return [cell.strip().replace("\\|", "|") for cell in re.split(r"(?<!\\)\|", inner)]
+def _image(self: RendererHTML, tokens: Sequence[Token], idx: int, options: OptionsDict, env: EnvType) -> str:
+    token = tokens[idx]
+    src = str(token.attrGet("src") or "")
+    alt = self.renderInlineAsText(token.children or [], options, env)
+    uri = _data_uri(src, env["folder"])
+    if uri is None:
+        note = f"(figure {src} was not written)"
+        return str(Markup('<p class="missing">{}</p>' if token.meta.get("figure") else '<span class="missing">{}</span>')
+                   .format(note))
+    image = Markup('<img src="{}" alt="{}">').format(uri, alt)
+    if not token.meta.get("figure"):
+        return str(image)
+    return str(Markup("<figure>{}<figcaption>{}</figcaption></figure>\n").format(image, src))
 
 
-def _table(header: str, rows: list[str], folder: Path) -> str:
-    head = "".join(f"<th>{_inline(c, folder)}</th>" for c in _cells(header))
-    body = "".join("<tr>" + "".join(f"<td>{_inline(c, folder)}</td>" for c in _cells(r)) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+def _link_open(self: RendererHTML, tokens: Sequence[Token], idx: int, options: OptionsDict, env: EnvType) -> str:
+    token = tokens[idx]
+    token.attrSet("href", _href(str(token.attrGet("href") or ""), env["folder"]))
+    return self.renderToken(tokens, idx, options, env)
 
 
 def _data_uri(src: str, folder: Path) -> str | None:
@@ -174,14 +157,6 @@ def _data_uri(src: str, folder: Path) -> str | None:
     return f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode('ascii')}"
 
 
-def _figure(alt: str, src: str, folder: Path) -> str:
-    uri = _data_uri(src, folder)
-    if uri is None:
-        return f'<p class="missing">(figure {html.escape(src)} was not written)</p>'
-    return (f'<figure><img src="{html.escape(uri)}" alt="{html.escape(alt)}">'
-            f"<figcaption>{html.escape(src)}</figcaption></figure>")
-
-
 def _href(target: str, folder: Path) -> str:
     """A link to another report's Markdown points at its HTML twin when that exists."""
     path, _, fragment = target.partition("#")
@@ -192,26 +167,4 @@ def _href(target: str, folder: Path) -> str:
     return target
 
 
-def _inline(text: str, folder: Path) -> str:
-    """Inline code, images, links and bold; everything else escaped."""
-    pieces = re.split(r"(`[^`]+`)", text)
-    out = []
-    for piece in pieces:
-        if _CODE.fullmatch(piece):
-            out.append(f"<code>{html.escape(piece[1:-1])}</code>")
-            continue
-        escaped = html.escape(piece, quote=False)
-
-        def image(match: re.Match[str]) -> str:
-            uri = _data_uri(html.unescape(match["src"]), folder)
-            if uri is None:
-                return f'<span class="missing">(figure {match["src"]} was not written)</span>'
-            return f'<img src="{html.escape(uri)}" alt="{match["alt"]}">'
-
-        def link(match: re.Match[str]) -> str:
-            return f'<a href="{html.escape(_href(html.unescape(match["href"]), folder))}">{match["text"]}</a>'
-
-        escaped = _INLINE_IMAGE.sub(image, escaped)
-        escaped = _LINK.sub(link, escaped)
-        out.append(_BOLD.sub(r"<strong>\1</strong>", escaped))
-    return "".join(out)
+__all__ = ["markdown_to_html", "render_page", "write_html"]

@@ -9,36 +9,7 @@ from typing import Any
 from slamfront.evaluation.base import EvaluationReport
 from slamfront.outputs import write_atomically
 from slamfront.recipe import Recipe
-
-_HEADLINE_KEYS = (
-    "recall_at_100p",
-    "auc_pr",
-    "ate_rmse_m",
-    "rpe_rmse_m",
-    "ate_rmse_before_m",
-    "ate_rmse_after_m",
-    "drift_before_m",
-    "drift_after_m",
-    "n_loop_constraints_added",
-    "n_loop_constraints_added_false",
-    "precision_verified",
-    "recall_verified",
-    "n_queries",
-    "n_searches",
-    "n_places_reference",
-    "n_places_query",
-    "n_keyframes",
-    "n_clouds",
-    "n_frames",
-    "seconds",
-    "frames_per_second",
-)
-
-
-def _fmt(value: Any) -> str:
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return str(value)
+from slamfront.report.headline import headline
 
 
 def write_report(
@@ -49,9 +20,8 @@ def write_report(
     if recipe.description:
         lines += [recipe.description.strip(), ""]
     lines += [f"Recipe: `{origin}`. Log: `run.mcap` (open it in Foxglove). Metrics: `metrics.json`.", ""]
-    lines += ["## Headline", "", "| metric | value |", "| --- | --- |"]
-    lines += [f"| {key} | {_fmt(metrics[key])} |" for key in _HEADLINE_KEYS if key in metrics]
-    lines.append("")
+    lines += ["## Headline", "", *(f"- {sentence}" for sentence in headline(metrics)), "",
+              "Every number of the run, with what it means, is in the sections below and in `metrics.json`.", ""]
     for section in sections:
         lines += [f"## {section.title}", "", section.markdown.rstrip(), ""]
     timing = metrics.get("timing", {})

@@ -9,7 +9,6 @@ with any other trajectory of the same recording.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -19,7 +18,7 @@ SUFFIX = ".tum"
 
 
 def write_trajectory_files(out_dir: Path, trajectories: Mapping[str, Trajectory]) -> list[Path]:
-    """Write each trajectory to ``out_dir/<name>.tum`` (a temporary file renamed into place).
+    """Write each trajectory to ``out_dir/<name>.tum`` (atomically, never through a link).
 
     :returns: the files written, in the order given.
     """
@@ -27,9 +26,5 @@ def write_trajectory_files(out_dir: Path, trajectories: Mapping[str, Trajectory]
     for name, trajectory in trajectories.items():
         if len(trajectory) == 0:
             continue
-        path = out_dir / f"{name}{SUFFIX}"
-        tmp = path.with_name(path.name + ".tmp")
-        write_tum(tmp, trajectory)
-        os.replace(tmp, path)
-        written.append(path)
+        written.append(write_tum(out_dir / f"{name}{SUFFIX}", trajectory))
     return written

@@ -6,7 +6,6 @@ from collections.abc import Mapping, Sequence
 from functools import cached_property
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
@@ -272,7 +271,7 @@ class GtsamPoseGraph(Backend):
         if stage is not None and features is not None and features.keypoints is not None:
             keypoints, descriptors, metric, kind = features.keypoints, features.descriptors, features.metric, stage
         else:
-            grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
+            grey = frame.gray()
             own = self._extractor.extract(grey)
             keypoints, descriptors, metric, kind = own.keypoints, own.descriptors, own.metric, self.config.pnp.descriptor
         if self._matcher is None:

@@ -12,15 +12,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, PluginConfig
 from slamfront.core.geometry import invert
 from slamfront.core.pnp import backproject, pnp_ransac
+from slamfront.lazy import lazy_module
 from slamfront.local_features import DescriptorType
 from slamfront.matching import Matcher, MatchingConfig
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 
 def _loop_matching() -> MatchingConfig:

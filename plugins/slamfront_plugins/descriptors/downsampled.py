@@ -5,13 +5,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.core.thumbnail import patch_normalise, thumbnail
+from slamfront.lazy import lazy_module
 from slamfront.messages import Features
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 __all__ = ["DownsampledImage", "patch_normalise"]
 

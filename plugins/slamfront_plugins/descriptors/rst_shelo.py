@@ -47,12 +47,14 @@ import functools
 from collections.abc import Sequence
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import DataError, Descriptor, PluginConfig, StageInputs
+from slamfront.lazy import lazy_module
 from slamfront.messages import Features
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 MAX_L1_DISTANCE = 2.0
 """The largest L1 distance between two descriptors (both are non-negative with unit L1 norm)."""

@@ -4,14 +4,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import Descriptor, PluginConfig, StageInputs
 from slamfront.core.seqslam import patch_normalise
 from slamfront.core.thumbnail import imresize
+from slamfront.lazy import lazy_module
 from slamfront.messages import Features
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 
 class SeqSlamThumbnail(Descriptor):

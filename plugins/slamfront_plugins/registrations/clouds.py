@@ -15,12 +15,14 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
-import open3d as o3d
 
 from slamfront import DataError, Frame
 from slamfront.core.clouds import back_project
 from slamfront.core.point_features import hybrid_neighbours, pfh
+from slamfront.lazy import lazy_module
 from slamfront_plugins.registrations.config import FeatureIcpConfig
+
+o3d = lazy_module("open3d")  # loads on first use: listing plugins does not import it
 
 T = TypeVar("T")
 

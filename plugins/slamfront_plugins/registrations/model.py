@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 
 from slamfront.core.clouds import transform_points
+from slamfront.lazy import lazy_module
+
+o3d = lazy_module("open3d")  # loads on first use: listing plugins does not import it
 
 
 def voxelise(points: np.ndarray, colors: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:

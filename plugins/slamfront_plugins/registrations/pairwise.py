@@ -13,14 +13,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from slamfront.core.distances import nearest_two
 from slamfront.core.geometry import rotation_angle_deg
+from slamfront.lazy import lazy_module
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, open3d_threads
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 
-reg = o3d.pipelines.registration
+o3d = lazy_module("open3d")  # loads on first use: listing plugins does not import it
+
 
 
 @dataclass(frozen=True)
@@ -82,48 +83,48 @@ def initial_transform(
     matches = o3d.utility.Vector2iVector(pairs)
     o3d.utility.random.seed(seed)  # both sample at random: seeded per pair, reproducible
     if config.initial_alignment == "fgr":
-        option = reg.FastGlobalRegistrationOption(
+        option = o3d.pipelines.registration.FastGlobalRegistrationOption(
             maximum_correspondence_distance=config.fgr_distance_voxels * voxel * scale,
             iteration_number=int(config.fgr_iterations * scale),
         )
         with quiet():
-            result = reg.registration_fgr_based_on_correspondence(source.cloud, target.cloud, matches, option)
+            result = o3d.pipelines.registration.registration_fgr_based_on_correspondence(source.cloud, target.cloud, matches, option)
         return np.asarray(result.transformation)
     distance = config.ransac_distance_voxels * voxel * scale
     with quiet():
-        result = reg.registration_ransac_based_on_correspondence(
+        result = o3d.pipelines.registration.registration_ransac_based_on_correspondence(
             source.cloud, target.cloud, matches, distance,
-            reg.TransformationEstimationPointToPoint(False), 3,
+            o3d.pipelines.registration.TransformationEstimationPointToPoint(False), 3,
             [
-                reg.CorrespondenceCheckerBasedOnEdgeLength(config.ransac_edge_length_ratio),
-                reg.CorrespondenceCheckerBasedOnDistance(distance),
+                o3d.pipelines.registration.CorrespondenceCheckerBasedOnEdgeLength(config.ransac_edge_length_ratio),
+                o3d.pipelines.registration.CorrespondenceCheckerBasedOnDistance(distance),
             ],
-            reg.RANSACConvergenceCriteria(int(config.ransac_max_iterations * scale), config.ransac_confidence),
+            o3d.pipelines.registration.RANSACConvergenceCriteria(int(config.ransac_max_iterations * scale), config.ransac_confidence),
         )
     return np.asarray(result.transformation)
 
 
 def icp(
     source: PreparedCloud, target: PreparedCloud, start: np.ndarray, config: FeatureIcpConfig, distance: float
-) -> reg.RegistrationResult:
+) -> o3d.pipelines.registration.RegistrationResult:
     """ICP with the paper's stopping rules (iterations, and epsilon on fitness and RMSE change).
 
     PCL stops on the change of the transform; Open3D on the relative change of fitness
     and inlier RMSE, which is the nearest equivalent it offers.
     """
     estimation = (
-        reg.TransformationEstimationPointToPlane()
+        o3d.pipelines.registration.TransformationEstimationPointToPlane()
         if config.icp_method == "point_to_plane"
-        else reg.TransformationEstimationPointToPoint(False)
+        else o3d.pipelines.registration.TransformationEstimationPointToPoint(False)
     )
-    criteria = reg.ICPConvergenceCriteria(
+    criteria = o3d.pipelines.registration.ICPConvergenceCriteria(
         relative_fitness=config.icp_epsilon, relative_rmse=config.icp_epsilon, max_iteration=config.icp_max_iterations
     )
     with quiet():
-        return reg.registration_icp(source.cloud, target.cloud, distance, start, estimation, criteria)
+        return o3d.pipelines.registration.registration_icp(source.cloud, target.cloud, distance, start, estimation, criteria)
 
 
-def quality_problem(result: reg.RegistrationResult, config: FeatureIcpConfig) -> str:
+def quality_problem(result: o3d.pipelines.registration.RegistrationResult, config: FeatureIcpConfig) -> str:
     """Why an ICP result is not trusted, or "" when it passes every check."""
     transform = np.asarray(result.transformation)
     if result.fitness <= 0:

@@ -15,14 +15,15 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 
 from slamfront.core.geometry import invert, relative
+from slamfront.lazy import lazy_module
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, open3d_threads
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.pairwise import align, quiet
 
-reg = o3d.pipelines.registration
+o3d = lazy_module("open3d")  # loads on first use: listing plugins does not import it
+
 
 
 @dataclass(frozen=True)
@@ -97,24 +98,24 @@ def refine(
     if not loops:
         return Refinement(dict(poses), np.empty((0, 2), dtype=np.int64), len(candidates), refined=False)
 
-    def build() -> reg.PoseGraph:
-        graph = reg.PoseGraph()
+    def build() -> o3d.pipelines.registration.PoseGraph:
+        graph = o3d.pipelines.registration.PoseGraph()
         for frame in frames:
-            graph.nodes.append(reg.PoseGraphNode(poses[frame]))
+            graph.nodes.append(o3d.pipelines.registration.PoseGraphNode(poses[frame]))
         for link, uncertain in [(link, False) for link in links if link.source in node and link.target in node] + [
             (link, True) for link in loops
         ]:
-            information = reg.get_information_matrix_from_point_clouds(
+            information = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
                 clouds[link.source].cloud, clouds[link.target].cloud, config.icp_distance_m, link.transform
             )
             graph.edges.append(
-                reg.PoseGraphEdge(node[link.source], node[link.target], link.transform, information, uncertain=uncertain)
+                o3d.pipelines.registration.PoseGraphEdge(node[link.source], node[link.target], link.transform, information, uncertain=uncertain)
             )
         return graph
 
     with open3d_threads(config.threads):
         graph = timer.run("pose_graph", build)
-    option = reg.GlobalOptimizationOption(
+    option = o3d.pipelines.registration.GlobalOptimizationOption(
         max_correspondence_distance=config.icp_distance_m,
         edge_prune_threshold=config.edge_prune_threshold,
         preference_loop_closure=config.loop_preference,
@@ -123,8 +124,8 @@ def refine(
     with quiet(), open3d_threads(config.threads):
         timer.run(
             "pose_graph",
-            lambda: reg.global_optimization(
-                graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(), option
+            lambda: o3d.pipelines.registration.global_optimization(
+                graph, o3d.pipelines.registration.GlobalOptimizationLevenbergMarquardt(), o3d.pipelines.registration.GlobalOptimizationConvergenceCriteria(), option
             ),
         )
     kept = [(frames[e.target_node_id], frames[e.source_node_id]) for e in graph.edges if e.uncertain]

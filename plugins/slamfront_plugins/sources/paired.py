@@ -25,7 +25,6 @@ from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
@@ -33,6 +32,9 @@ from slamfront import DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath
 from slamfront.imageio import IMAGE_SUFFIXES, read_image
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 Experiment = Literal["original", "replaced", "reordered"]
 

@@ -18,42 +18,8 @@ from slamfront import DataError
 from slamfront.data import DataPath, data_root, download_root
 from slamfront.datasets import DatasetDownload
 from slamfront.formats.npy import load_npy
+from slamfront_plugins.downloads import GARDENS_POINT, NORDLAND, UOFA
 from slamfront_plugins.sources.paired import PairedLayout, PairedTraversals, images_in
-
-NORDLAND_COMMIT = "ea9ca6f6e5f7c5181357c5f649f0a3e0a6a6a8d0"
-
-NORDLAND = DatasetDownload(
-    name="nordland",
-    title="Nordland railway, summer/winter, every 10th frame, 64x32 grey (the OpenSeqSLAM-style set)",
-    url=f"https://codeload.github.com/TimQuelch/seqslam/tar.gz/{NORDLAND_COMMIT}",
-    homepage="https://nrkbeta.no/2013/01/15/nordlandsbanen-minute-by-minute-season-by-season/",
-    license="CC BY (NRK); frames as redistributed in github.com/TimQuelch/seqslam",
-    archive="tar",
-    members=f"seqslam-{NORDLAND_COMMIT}/datasets/nordland_trimmed/",
-    strip=f"seqslam-{NORDLAND_COMMIT}/datasets/nordland_trimmed/",
-    expect=("summer", "winter"),
-)
-GARDENS_POINT = DatasetDownload(
-    name="gardens_point",
-    title="Gardens Point Walking (QUT): day_left, day_right, night_right, 200 frames each",
-    url="https://www.tu-chemnitz.de/etit/proaut/datasets/GardensPoint_Walking.zip",
-    homepage="https://wiki.qut.edu.au/display/cyphy/Day+and+Night+with+Lateral+Pose+Change+Datasets",
-    license="QUT research dataset; cite Suenderhauf et al. 2015 (mirror of TU Chemnitz, used by the VPR tutorial)",
-    archive="zip",
-)
-UOFA = DatasetDownload(
-    name="uofa",
-    title="UofA day/evening (University of Alberta, Husky robot), 646 frames each",
-    url=None,
-    homepage="https://github.com/siam1251/Fast-SeqSLAM",
-    license="research use; cite Siam and Zhang 2017",
-    manual=(
-        "The authors share it as a Google Drive folder "
-        "(https://drive.google.com/drive/folders/0B5OUuYYB6c4CUktyMncxZXQxcDQ, linked from "
-        "github.com/siam1251/Fast-SeqSLAM/dataset). Download its day_evening folder and put it at "
-        "{cache}/uofa/day_evening (or anywhere, and set the uofa source's root)."
-    ),
-)
 
 
 def dataset_folder(configured: Path | None, name: str) -> Path:

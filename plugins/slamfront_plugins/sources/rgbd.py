@@ -24,6 +24,7 @@ from slamfront.datasets import DatasetDownload
 from slamfront.formats.poses import TRAJECTORY_READERS, Trajectory, numbered_fields, read_tum
 from slamfront.formats.tum_rgbd import associate, read_file_list
 from slamfront.imageio import list_images, read_depth, read_image
+from slamfront_plugins.downloads import TUM_FR1_DESK, TUM_FR2_PIONEER_SLAM
 
 KNOWN_CAMERAS = MappingProxyType(
     {
@@ -40,31 +41,6 @@ KnownCamera = Literal["primesense", "tum_fr1", "tum_fr2", "tum_fr3", "icl_nuim",
 
 POSE_READERS = TRAJECTORY_READERS
 
-_TUM = "https://cvg.cit.tum.de/rgbd/dataset"
-
-
-def _tum_sequence(name: str, group: str, title: str) -> DatasetDownload:
-    """A TUM RGB-D benchmark sequence archive, unpacked so its folder holds rgb.txt directly."""
-    folder = f"rgbd_dataset_{group}_{name}"
-    return DatasetDownload(
-        name=f"tum_{group.replace('freiburg', 'fr')}_{name}",
-        title=title,
-        url=f"{_TUM}/{group}/{folder}.tgz",
-        homepage="https://cvg.cit.tum.de/data/datasets/rgbd-dataset/download",
-        license="CC BY 4.0; cite Sturm et al. 2012 (TUM publishes no checksum: the first download records one)",
-        archive="tar",
-        members=f"{folder}/",
-        strip=f"{folder}/",
-        expect=("rgb.txt", "depth.txt", "groundtruth.txt"),
-    )
-
-
-TUM_FR1_DESK = _tum_sequence(
-    "desk", "freiburg1", "TUM RGB-D fr1/desk: hand-held, four desks of an office (Barbosa 2017, table 8)"
-)
-TUM_FR2_PIONEER_SLAM = _tum_sequence(
-    "pioneer_slam", "freiburg2", "TUM RGB-D fr2/pioneer_slam: a Pioneer robot in a hall (Barbosa 2017, tables 1-7)"
-)
 _FLIP_Y = np.diag([1.0, -1.0, 1.0, 1.0])
 
 

@@ -1,4 +1,4 @@
-"""A procedural street world rendered on the CPU with Open3D's ray caster.
+"""A procedural street world, ray cast on the CPU in float64, the same bits on every machine.
 
 The world is a closed street (a rounded rectangle) lined on both sides by buildings.
 Every building gets its own facade, drawn from a seeded random generator: wall colour,
@@ -9,21 +9,30 @@ windows), viewpoint (a lateral offset and a yaw offset) and moving occluders (pe
 and vehicles as upright cylinders). Everything is a pure function of the world seed and the
 frame's parameters, so frames are deterministic and can be rendered in any order.
 
+Every building face is a vertical wall standing on flat ground and the camera never rolls
+or pitches, so a ray's horizontal direction depends on its image column only: the caster
+intersects each column with the walls in 2-D, then picks per row the nearest wall the ray
+passes between its foot and its top. It uses only IEEE-exact arithmetic (+ - * / sqrt,
+floor), never a reduction, matrix product or library ray caster whose rounding follows the
+CPU: Open3D's Embree, which this replaced, picks SSE/AVX2/AVX-512 code at run time and
+returns depths that differ in the last bit between machines (on ~8 % of the pixels of an
+emulated Haswell against this AVX-512 one), and the odometry downstream amplifies a
+last-bit change of the depth into a different trajectory.
+
 World frame: x east, y north, z up, metres. Camera frame: OpenCV (x right, y down,
 z forward). Poses are camera-to-world 4x4 matrices.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import open3d as o3d
 
 Illumination = Literal["day", "dusk", "night"]
 
-_WALL, _GROUND = 0, 1
 _CAMERA_HEIGHT = 1.6
 _STOREY = 3.2
 _SHOP_HEIGHT = 3.6
@@ -67,7 +76,7 @@ class Lighting:
 
 def _unit(v: list[float] | np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
+    return v / math.sqrt(sum(float(c) * float(c) for c in v))  # no BLAS dot: its rounding follows the CPU
 
 
 def _hash01(*keys: np.ndarray) -> np.ndarray:
@@ -107,17 +116,18 @@ class Route:
         starts = [np.array([r - w / 2, -h / 2]), np.array([w / 2, r - h / 2]),
                   np.array([w / 2 - r, h / 2]), np.array([-w / 2, h / 2 - r])]
         directions = [np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([-1.0, 0.0]), np.array([0.0, -1.0])]
+        # each leg's heading angle minus 90 degrees (numpy's arctan2 rounds by the CPU's instruction set)
+        start_angles = [-np.pi / 2, 0.0, np.pi / 2, -np.pi]
         pos = np.zeros((len(s), 2))
         head = np.zeros((len(s), 2))
         offset = 0.0
-        for leg, start, direction in zip(legs, starts, directions):
+        for leg, start, direction, angle0 in zip(legs, starts, directions, start_angles):
             on_leg = (s >= offset) & (s < offset + leg)
             t = s[on_leg] - offset
             pos[on_leg] = start + t[:, None] * direction
             head[on_leg] = direction
             offset += leg
             on_arc = (s >= offset) & (s < offset + quarter)
-            angle0 = np.arctan2(direction[1], direction[0]) - np.pi / 2
             centre = start + leg * direction + r * np.array([-direction[1], direction[0]])
             phi = angle0 + (s[on_arc] - offset) / r
             pos[on_arc] = centre + r * np.stack([np.cos(phi), np.sin(phi)], axis=1)
@@ -145,7 +155,7 @@ class Facades:
 
 
 class StreetWorld:
-    """The static scene: geometry in a ray-casting scene plus facade parameters.
+    """The static scene: vertical walls on flat ground, plus facade parameters.
 
     :param seed: everything random in the world derives from it.
     :param route_length_m: approximate length of the closed street.
@@ -171,38 +181,28 @@ class StreetWorld:
         self.street_width = street_width_m
         self.seed = seed
         self.own_patterns = own_patterns
-        self._triangles: list[np.ndarray] = []
-        self._tri_kind: list[int] = []
-        self._tri_building: list[int] = []
-        self._tri_origin: list[np.ndarray] = []
-        self._tri_axis: list[np.ndarray] = []
-        self._tri_s0: list[float] = []
+        self._walls: list[tuple[np.ndarray, np.ndarray, float, int, float]] = []  # a, b, height, building, s0
         self._building_params: list[dict[str, np.ndarray | float]] = []
         self._build(rng)
-        self.scene = o3d.t.geometry.RaycastingScene(nthreads=0)
-        vertices = np.concatenate(self._triangles).astype(np.float32)
-        faces = np.arange(len(vertices), dtype=np.uint32).reshape(-1, 3)
-        self.scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(faces))
-        self.tri_kind = np.array(self._tri_kind, dtype=np.int32)
-        self.tri_building = np.array(self._tri_building, dtype=np.int64)
-        self.tri_origin = np.array(self._tri_origin, dtype=np.float64)
-        self.tri_axis = np.array(self._tri_axis, dtype=np.float64)
-        self.tri_s0 = np.array(self._tri_s0, dtype=np.float64)
+        # wall w runs from wall_a[w] to wall_b[w] (x, y), from the ground to wall_height[w]
+        self.wall_a = np.array([w[0] for w in self._walls], dtype=np.float64)
+        self.wall_b = np.array([w[1] for w in self._walls], dtype=np.float64)
+        self.wall_height = np.array([w[2] for w in self._walls], dtype=np.float64)
+        self.wall_building = np.array([w[3] for w in self._walls], dtype=np.int64)
+        self.wall_s0 = np.array([w[4] for w in self._walls], dtype=np.float64)
+        edge = self.wall_b - self.wall_a
+        length = np.sqrt(edge[:, 0] * edge[:, 0] + edge[:, 1] * edge[:, 1])
+        self.wall_axis = edge / length[:, None]  # the facade coordinate's direction
+        # the normal faces the street (the walls are ordered so that it does)
+        self.wall_normal = np.stack([self.wall_axis[:, 1], -self.wall_axis[:, 0], np.zeros(len(edge))], axis=1)
+        self.ground_extent = max(self.route.width, self.route.height)
         self.facades = self._facades()
 
     # -- construction --------------------------------------------------------------------
 
-    def _quad(self, a: np.ndarray, b: np.ndarray, z0: float, z1: float, building: int, s0: float) -> None:
-        """A vertical rectangle from a to b (2-D points); ``s0`` is the facade coordinate at a."""
-        p = [np.r_[a, z0], np.r_[b, z0], np.r_[b, z1], np.r_[a, z1]]
-        axis = np.r_[(b - a) / np.linalg.norm(b - a), 0.0]
-        for tri in ((p[0], p[1], p[2]), (p[0], p[2], p[3])):
-            self._triangles.append(np.array(tri))
-            self._tri_kind.append(_WALL)
-            self._tri_building.append(building)
-            self._tri_origin.append(p[0])
-            self._tri_axis.append(axis)
-            self._tri_s0.append(s0)
+    def _wall(self, a: np.ndarray, b: np.ndarray, height: float, building: int, s0: float) -> None:
+        """A vertical rectangle from a to b (2-D points), 0 to ``height`` m; ``s0`` is the facade coordinate at a."""
+        self._walls.append((a, b, height, building, s0))
 
     def _new_building(self, rng: np.random.Generator, start: float) -> int:
         hue = rng.uniform(0, 1)
@@ -252,25 +252,14 @@ class StreetWorld:
                     a, b, s0 = seq[k], seq[k + 1], s_values[idx[k]]
                 else:
                     a, b, s0 = seq[k + 1], seq[k], -s_values[idx[k + 1]]
-                if np.linalg.norm(b - a) > 1e-6:
-                    self._quad(a, b, 0.0, height, building, s0)
+                if math.hypot(*(b - a)) > 1e-6:
+                    self._wall(a, b, height, building, s0)
             s = end
-
-    def _ground(self, extent: float) -> None:
-        corners = np.array([[-extent, -extent, 0.0], [extent, -extent, 0.0], [extent, extent, 0.0], [-extent, extent, 0.0]])
-        for tri in ((corners[0], corners[1], corners[2]), (corners[0], corners[2], corners[3])):
-            self._triangles.append(np.array(tri))
-            self._tri_kind.append(_GROUND)
-            self._tri_building.append(-1)
-            self._tri_origin.append(np.zeros(3))
-            self._tri_axis.append(np.array([1.0, 0.0, 0.0]))
-            self._tri_s0.append(0.0)
 
     def _build(self, rng: np.random.Generator) -> None:
         half = self.street_width / 2
         self._row(rng, -half, outer=True)  # right of travel (counter-clockwise route: outside)
         self._row(rng, +half, outer=False)
-        self._ground(max(self.route.width, self.route.height))
 
     def _facades(self) -> Facades:
         params = self._building_params
@@ -312,32 +301,33 @@ class StreetWorld:
     ) -> tuple[np.ndarray, np.ndarray]:
         """RGB uint8 (H, W, 3) and depth float32 (H, W) metres (0 = no return).
 
+        :param pose: camera-to-world, upright (no roll or pitch), as :meth:`pose_at` gives.
         :param occluders: (K, 5) upright cylinders ``x, y, radius, height, colour seed``.
         """
+        rotation, origin = np.asarray(pose, dtype=np.float64)[:3, :3], np.asarray(pose, dtype=np.float64)[:3, 3]
+        right, forward = rotation[:, 0], rotation[:, 2]
+        if not (np.array_equal(rotation[:, 1], [0.0, 0.0, -1.0]) and right[2] == 0 and forward[2] == 0):
+            raise ValueError("StreetWorld.render takes upright cameras (no roll or pitch), as pose_at gives")
         fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        cam_dirs = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], axis=-1)
-        rotation, origin = pose[:3, :3], pose[:3, 3]
-        dirs = cam_dirs @ rotation.T  # z-component 1 in the camera: t_hit is depth
-        rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], axis=-1).astype(np.float32)
-        hit = self.scene.cast_rays(o3d.core.Tensor(rays))
-        t = hit["t_hit"].numpy().astype(np.float64)
-        prim = hit["primitive_ids"].numpy().astype(np.int64)
-        normals = hit["primitive_normals"].numpy().astype(np.float64)
-        valid = np.isfinite(t)
-        prim = np.where(valid, prim, 0)
-        points = origin + dirs * np.where(valid, t, 0.0)[..., None]
+        x = (np.arange(width, dtype=np.float64) - cx) / fx
+        y = (np.arange(height, dtype=np.float64) - cy) / fy
+        # ray = x * right + y * down + forward (camera z = 1, so the ray parameter is the depth):
+        # its horizontal part depends on the column only, its height on the row only
+        column_dirs = np.stack([x * right[0] + forward[0], x * right[1] + forward[1]], axis=1)  # (W, 2)
+        rise = -y  # (H,)
+        dirs = np.empty((height, width, 3))
+        dirs[..., :2] = column_dirs[None]
+        dirs[..., 2] = rise[:, None]
+        t, wall_of, on_ground = self._cast(origin, column_dirs, rise)
+        points = origin + dirs * np.where(np.isfinite(t), t, 0.0)[..., None]
         colour = self._sky(dirs, lighting)
-
-        kind = np.where(valid, self.tri_kind[prim], -1)
-        wall = kind == _WALL
-        ground = kind == _GROUND
+        wall = wall_of >= 0
         if wall.any():
-            colour[wall] = self._facade_colour(points[wall], prim[wall], normals[wall], lighting)
-        if ground.any():
-            colour[ground] = self._ground_colour(points[ground], lighting)
+            colour[wall] = self._facade_colour(points[wall], wall_of[wall], lighting)
+        if on_ground.any():
+            colour[on_ground] = self._ground_colour(points[on_ground], lighting)
 
-        depth = np.where(valid, t, np.inf)
+        depth = t
         if occluders is not None and len(occluders):
             depth, colour = self._occlude(origin, dirs, depth, colour, occluders, lighting)
         # distance haze keeps far geometry from aliasing into noise
@@ -351,6 +341,53 @@ class StreetWorld:
         depth_out = np.where(np.isfinite(depth) & (depth <= max_depth_m), depth, 0.0).astype(np.float32)
         return rgb, depth_out
 
+    def _cast(self, origin: np.ndarray, column_dirs: np.ndarray, rise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Depth (H, W) (inf: sky), the wall each pixel sees (-1: none) and whether it sees the ground.
+
+        :param column_dirs: (W, 2) the horizontal part of each column's rays.
+        :param rise: (H,) the vertical part of each row's rays (per unit depth).
+        """
+        height, width = len(rise), len(column_dirs)
+        dx, dy = column_dirs[:, 0:1], column_dirs[:, 1:2]
+        edge = self.wall_b - self.wall_a
+        ex, ey = edge[None, :, 0], edge[None, :, 1]
+        wx, wy = self.wall_a[None, :, 0] - origin[0], self.wall_a[None, :, 1] - origin[1]
+        # where column c's ray crosses wall w in plan view: origin + t d = a + s (b - a)
+        denom = dx * ey - dy * ex
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (wx * ey - wy * ex) / denom
+            s = (wx * dy - wy * dx) / denom
+        crossed = (denom != 0) & (t > 0) & (s >= 0) & (s <= 1)
+        columns, walls = np.nonzero(crossed)
+        depths = t[columns, walls]
+        order = np.lexsort((walls, depths, columns))  # per column, nearest first (ties: lower wall)
+        columns, walls, depths = columns[order], walls[order], depths[order]
+        counts = np.bincount(columns, minlength=width)
+        rank = np.arange(len(columns)) - np.repeat(np.cumsum(counts) - counts, counts)
+        k = int(counts.max()) if len(columns) else 0
+        crossing_depth = np.full((width, k), np.inf)
+        crossing_wall = np.zeros((width, k), dtype=np.int64)
+        crossing_depth[columns, rank] = depths
+        crossing_wall[columns, rank] = walls
+        # a row's ray hits the first crossed wall it passes between the wall's foot and top
+        z = origin[2] + crossing_depth[None] * rise[:, None, None]  # (H, W, k)
+        hits = (z >= 0) & (z <= self.wall_height[crossing_wall][None]) & np.isfinite(crossing_depth)[None]
+        first = np.argmax(hits, axis=2)[..., None] if k else np.zeros((height, width, 1), dtype=np.int64)
+        on_wall = hits.any(axis=2) if k else np.zeros((height, width), dtype=bool)
+        depth = np.where(on_wall, np.take_along_axis(np.broadcast_to(crossing_depth, (height, width, k)), first, 2)[..., 0]
+                         if k else np.inf, np.inf)
+        wall_of = np.where(on_wall, np.take_along_axis(np.broadcast_to(crossing_wall, (height, width, k)), first, 2)[..., 0]
+                           if k else -1, -1)
+        # below the horizon and short of every wall, the ray meets the ground (a square)
+        with np.errstate(divide="ignore"):
+            ground_depth = np.where(rise < 0, origin[2] / -rise, np.inf)[:, None]  # (H, 1)
+        gx = origin[0] + ground_depth * dx[:, 0][None]
+        gy = origin[1] + ground_depth * dy[:, 0][None]
+        extent = self.ground_extent
+        on_ground = ~on_wall & np.isfinite(ground_depth) & (np.abs(gx) <= extent) & (np.abs(gy) <= extent)
+        depth = np.where(on_ground, ground_depth, depth)
+        return depth, wall_of, on_ground
+
     def _pattern(self, *keys: np.ndarray) -> np.ndarray:
         """:func:`_hash01` of a surface pattern's cell keys (and of the world seed with ``own_patterns``)."""
         if self.own_patterns:
@@ -358,19 +395,22 @@ class StreetWorld:
         return _hash01(*keys)
 
     def _sky(self, dirs: np.ndarray, lighting: Lighting) -> np.ndarray:
-        elevation = dirs[..., 2] / np.linalg.norm(dirs, axis=-1)
+        elevation = dirs[..., 2] / np.sqrt(dirs[..., 0] * dirs[..., 0] + dirs[..., 1] * dirs[..., 1] + dirs[..., 2] * dirs[..., 2])
         blend = np.clip(elevation * 2.5, 0.0, 1.0)[..., None]
         return lighting.sky_horizon * (1 - blend) + lighting.sky_top * blend
 
     def _shade(self, albedo: np.ndarray, normals: np.ndarray, lighting: Lighting) -> np.ndarray:
-        diffuse = np.clip(normals @ lighting.sun, 0.0, 1.0)[:, None]
+        sun = lighting.sun  # an explicit sum, not a matrix product: BLAS rounds by the CPU
+        diffuse = np.clip(normals[:, 0] * sun[0] + normals[:, 1] * sun[1] + normals[:, 2] * sun[2], 0.0, 1.0)[:, None]
         return albedo * (lighting.ambient_rgb + diffuse * lighting.sun_rgb)
 
-    def _facade_colour(self, points: np.ndarray, prim: np.ndarray, normals: np.ndarray, lighting: Lighting) -> np.ndarray:
+    def _facade_colour(self, points: np.ndarray, walls: np.ndarray, lighting: Lighting) -> np.ndarray:
         f = self.facades
-        b = self.tri_building[prim]
-        # facade coordinate, continuous across the quads of a building
-        s = self.tri_s0[prim] + np.einsum("ij,ij->i", points - self.tri_origin[prim], self.tri_axis[prim])
+        b = self.wall_building[walls]
+        normals = self.wall_normal[walls]
+        # facade coordinate, continuous across the walls of a building
+        a, axis = self.wall_a[walls], self.wall_axis[walls]
+        s = self.wall_s0[walls] + ((points[:, 0] - a[:, 0]) * axis[:, 0] + (points[:, 1] - a[:, 1]) * axis[:, 1])
         z = points[:, 2]
         albedo = f.wall_rgb[b].copy()
         # brick-like noise: 0.25 x 0.12 m cells

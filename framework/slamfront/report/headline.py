@@ -1,0 +1,41 @@
+"""The few sentences a run ends with: on the console, and first in the report.
+
+Each sentence appears when the run has the metrics it needs (a loop detector, a back end,
+a localizer); every number a run computes is in ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def _number(metrics: dict[str, Any], *keys: str) -> bool:
+    return all(isinstance(metrics.get(k), int | float) and not isinstance(metrics.get(k), bool) for k in keys)
+
+
+def headline(metrics: dict[str, Any]) -> list[str]:
+    """The sentences, most telling first."""
+    m = metrics
+    lines = []
+    if _number(m, "ate_rmse_before_m", "ate_rmse_after_m"):
+        lines.append(f"ATE before -> after optimisation: {m['ate_rmse_before_m']:.3g} m -> {m['ate_rmse_after_m']:.3g} m")
+    if _number(m, "drift_before_m", "drift_after_m", "drift_before_percent", "drift_after_percent"):
+        lines.append(f"drift at the last frame: {m['drift_before_m']:.3g} m -> {m['drift_after_m']:.3g} m "
+                     f"({m['drift_before_percent']:.2g} % -> {m['drift_after_percent']:.2g} % of the distance)")
+    if _number(m, "recall_at_100p", "auc_pr"):
+        line = f"loop closure: recall {m['recall_at_100p']:.3f} at 100 % precision, AUC-PR {m['auc_pr']:.3f}"
+        if _number(m, "precision_at_operating_point", "recall_at_operating_point"):
+            line += (f"; the detector's accepted answers: precision {m['precision_at_operating_point']:.3f}, "
+                     f"recall {m['recall_at_operating_point']:.3f}")
+        lines.append(line)
+    if _number(m, "n_loop_constraints_added", "n_loop_constraints_added_false"):
+        skipped = m.get("n_loop_constraints_skipped")
+        rejected = f"; {skipped} rejected" if isinstance(skipped, int) else ""
+        lines.append(f"the back end verified {m['n_loop_constraints_added']} loop closures "
+                     f"({m['n_loop_constraints_added_false']} of them wrong){rejected}")
+    if _number(m, "ate_rmse_m"):
+        rpe = f", RPE {m['rpe_rmse_m']:.3g} m" if _number(m, "rpe_rmse_m") else ""
+        lines.append(f"trajectory: ATE {m['ate_rmse_m']:.3g} m{rpe}")
+    if _number(m, "n_frames", "frames_per_second"):
+        lines.append(f"{m['n_frames']} frames at {m['frames_per_second']:.3g} frames/s")
+    return lines
