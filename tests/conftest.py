@@ -11,7 +11,6 @@ import yaml
 from slamfront.cli import main
 from slamfront.data import data_root
 
-
 SLOW = {
     # the longest tests without real data (`pytest --durations`, a shared 2-core machine at
     # load ~12: 30-185 s each there, 10-50 s on an idle one); `-m "not slow"` leaves them out

@@ -1002,7 +1002,7 @@ def test_run_help_says_what_a_sigkill_can_lose(capsys: pytest.CaptureFixture[str
 
 def test_decode_image_reads_the_declared_size_before_decoding(monkeypatch: pytest.MonkeyPatch) -> None:
     from slamfront.errors import DataError
-    from slamfront.imageio import decode_image, declared_size
+    from slamfront.imageio import declared_size, decode_image
 
     rgb = np.zeros((6, 8, 3), np.uint8)
     rgb[..., 0] = 200  # red

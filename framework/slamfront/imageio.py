@@ -22,8 +22,8 @@ from typing import Literal
 import numpy as np
 
 from slamfront.errors import DataError
-from slamfront.limits import over_limit
 from slamfront.lazy import lazy_module
+from slamfront.limits import over_limit
 
 cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 

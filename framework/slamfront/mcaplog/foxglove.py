@@ -28,8 +28,8 @@ from scipy.spatial.transform import Rotation
 from slamfront import imageio
 from slamfront.errors import DataError
 from slamfront.frame import Camera
-from slamfront.limits import over_limit
 from slamfront.lazy import lazy_module
+from slamfront.limits import over_limit
 
 cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
