@@ -230,3 +230,20 @@ def test_the_manifest_vouches_for_every_file_the_run_wrote_as_it_is(tmp_path: Pa
     assert set(manifest["files"]) == on_disk and {"run.mcap", "metrics.json", "report.md"} <= on_disk
     for name, entry in manifest["files"].items():  # the log's hash is its writer's, never read back
         assert entry == {"size": (out / name).stat().st_size, "sha256": _digest(out / name)}, name
+
+
+def test_a_run_killed_just_after_writing_an_output_leaves_it_vouched_for(tmp_path: Path) -> None:
+    """A kill between the rename of metrics.json and the next manifest write (a worker of a
+    broken process pool is killed at any moment) must not make the rerun refuse the folder."""
+    from slamfront.report.metrics_file import write_json_atomically
+
+    out = tmp_path / "out"
+    folder = claim_run_folder(out)
+    write_json_atomically(out / "metrics.json", {"n_frames": 3}, folder.announce)
+    folder.lock.release()  # killed here: no record after the rename, no close
+    assert json.loads((out / MANIFEST).read_text())["complete"] is False
+    again = claim_run_folder(out)  # vouched for by the announcement: removed, not refused
+    try:
+        assert again.replaced == ["metrics.json"] and not (out / "metrics.json").exists()
+    finally:
+        again.close()

@@ -38,7 +38,7 @@ import re
 import stat
 import sys
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -138,19 +138,27 @@ def open_output(path: Path) -> IO[bytes]:
         raise
 
 
-def write_atomically(path: Path, data: bytes | str) -> Path:
+def write_atomically(
+    path: Path, data: bytes | str, announce: Callable[[Path, int, str], None] | None = None
+) -> Path:
     """Write ``data`` beside ``path`` and rename it onto ``path``: a reader never sees half
     a file, and a link at ``path`` is replaced, never followed.
 
+    :param announce: called with ``(path, size, sha256)`` once the data is on disk and before
+        the rename (:meth:`RunFolder.announce`), so a run killed at any moment has already
+        vouched for the file it leaves.
     :raises OSError: the folder cannot be written (a full disk, no permission).
     """
     path = Path(path)
+    content = data.encode() if isinstance(data, str) else data
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     tmp.unlink(missing_ok=True)  # a killed writer's leftover (unlink never follows a link)
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
     try:
         with os.fdopen(fd, "wb") as stream:
-            stream.write(data.encode() if isinstance(data, str) else data)
+            stream.write(content)
+        if announce is not None:
+            announce(path, len(content), hashlib.sha256(content).hexdigest())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -327,6 +335,8 @@ class RunFolder:
     """Files of a previous run that were removed."""
     _log: dict[str, Any] | None = None
     _digests: dict[tuple[int, int, int, int], str] = field(default_factory=dict)
+    _announced: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Files about to be renamed into place (:meth:`announce`), by name: size and SHA-256."""
 
     def written(self) -> dict[str, os.stat_result]:
         """The files this run has written so far."""
@@ -342,9 +352,17 @@ class RunFolder:
             self._log = {"size": size, "sha256": sha256, "prefix": True, "dev": info.st_dev, "ino": info.st_ino}
             self.record(complete=False)
 
+    def announce(self, path: Path, size: int, sha256: str) -> None:
+        """``path`` (in this folder) is about to be renamed into place with this content:
+        record it now, so a kill between the rename and the next record leaves no file that
+        no manifest vouches for (pass it as ``announce`` to :func:`write_atomically`)."""
+        self._announced[Path(path).name] = {"size": size, "sha256": sha256}
+        self.record(complete=False)
+
     def record(self, complete: bool) -> None:
-        """Write the manifest: every file this run wrote so far, with its size and SHA-256."""
-        files: dict[str, dict[str, Any]] = {}
+        """Write the manifest: every file this run wrote so far, with its size and SHA-256,
+        and the files it announced and may not have renamed into place yet."""
+        files: dict[str, dict[str, Any]] = dict(self._announced)
         for name, info in self.written().items():
             log = self._log if name == "run.mcap" and self._log is not None else None
             if complete and log is not None and [log["dev"], log["ino"], log["size"]] == [

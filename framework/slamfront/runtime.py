@@ -396,11 +396,12 @@ def execute_run(
         with _writing_outputs(out_dir, "the run completed and its log is complete, but"):
             metrics.update(_log_statistics(log, log_path, clock.seconds, seconds, n_frames))
             sections.append(_log_section(metrics, layout_for(set(pipeline.plugins))))
-            metrics_path = write_json_atomically(out_dir / "metrics.json", metrics)
+            # announced before each rename: a run killed here leaves only files its manifest vouches for
+            metrics_path = write_json_atomically(out_dir / "metrics.json", metrics, folder.announce)
             # the run's TUM trajectories (groundtruth, odometry, optimised, estimated): written here, in one place
             write_trajectory_files(out_dir, {name: t for s in sections for name, t in s.trajectories.items()})
-            report_path = write_report(out_dir, recipe, origin, metrics, sections)
-            html_path = write_html(report_path)
+            report_path = write_report(out_dir, recipe, origin, metrics, sections, folder.announce)
+            html_path = write_html(report_path, announce=folder.announce)
         phases["report"] = time.perf_counter() - tick
     except BaseException as exc:
         folder.close()

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import base64
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -64,16 +64,19 @@ nav.contents { background: #f6f8fa; border: 1px solid #d8dee4; border-radius: 4p
 """)
 
 
-def write_html(markdown_path: Path, title: str | None = None) -> Path:
+def write_html(
+    markdown_path: Path, title: str | None = None, announce: Callable[[Path, int, str], None] | None = None
+) -> Path:
     """Write ``<name>.html`` beside ``markdown_path`` (a report slamfront wrote) and return it.
 
-    Written to a temporary file and renamed, so a reader never sees half a page.
+    Written to a temporary file and renamed, so a reader never sees half a page
+    (``announce``: see :func:`slamfront.outputs.write_atomically`).
     """
     markdown_path = Path(markdown_path)
     text = markdown_path.read_text()
     heading = next((line[2:].strip() for line in text.splitlines() if line.startswith("# ")), markdown_path.stem)
     page = render_page(text, markdown_path.parent, title or heading)
-    return write_atomically(markdown_path.with_suffix(".html"), page)
+    return write_atomically(markdown_path.with_suffix(".html"), page, announce)
 
 
 def render_page(markdown: str, folder: Path, title: str) -> str:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +13,15 @@ from slamfront.report.headline import headline
 
 
 def write_report(
-    out_dir: Path, recipe: Recipe, origin: str, metrics: dict[str, Any], sections: Sequence[EvaluationReport]
+    out_dir: Path,
+    recipe: Recipe,
+    origin: str,
+    metrics: dict[str, Any],
+    sections: Sequence[EvaluationReport],
+    announce: Callable[[Path, int, str], None] | None = None,
 ) -> Path:
-    """Write ``out_dir/report.md`` and return its path."""
+    """Write ``out_dir/report.md`` and return its path (``announce``: see
+    :func:`slamfront.outputs.write_atomically`)."""
     lines = [f"# {recipe.name}", ""]
     if recipe.description:
         lines += [recipe.description.strip(), ""]
@@ -38,4 +44,4 @@ def write_report(
             )
         lines.append("")
     lines += ["## Recipe", "", "```yaml", recipe.to_yaml().rstrip(), "```", ""]
-    return write_atomically(out_dir / "report.md", "\n".join(lines))
+    return write_atomically(out_dir / "report.md", "\n".join(lines), announce)

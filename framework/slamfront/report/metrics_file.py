@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 
-def write_json_atomically(path: Path, data: dict[str, Any]) -> Path:
-    """Write to a temporary file and rename, so a crash never leaves half a metrics file."""
+def write_json_atomically(
+    path: Path, data: dict[str, Any], announce: Callable[[Path, int, str], None] | None = None
+) -> Path:
+    """Write to a temporary file and rename, so a crash never leaves half a metrics file
+    (``announce``: see :func:`slamfront.outputs.write_atomically`)."""
     from slamfront.outputs import write_atomically
 
-    return write_atomically(path, json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n")
+    text = json.dumps(_finite(data), indent=2, default=_json_default, allow_nan=False) + "\n"
+    return write_atomically(path, text, announce)
 
 
 def _finite(value: Any) -> Any:
