@@ -11,11 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from slamfront.errors import DataError
 from slamfront.frame import Camera
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 RADIAL_TANGENTIAL = ("plumb_bob", "radtan", "radial-tangential", "rational_polynomial")
 FISHEYE = ("equidistant", "fisheye", "kannala_brandt")

@@ -20,12 +20,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import cv2
 import numpy as np
 
 from slamfront.errors import DataError
 from slamfront.frame import Camera
 from slamfront.imageio import decode_image
+from slamfront.lazy import lazy_module
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 COLOUR_ENCODINGS = (
     "rgb8", "bgr8", "rgba8", "bgra8", "mono8", "mono16", "8UC1", "8UC3",
@@ -36,9 +38,10 @@ DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
 
 # OpenCV names a Bayer pattern by the second row's first two pixels (its documented quirk):
 # ROS's rggb (R G / G B) is OpenCV's BayerBG
+# (the conversion codes' names, looked up when a Bayer image is decoded: cv2 loads lazily)
 _BAYER = {
-    "rggb": cv2.COLOR_BayerBG2RGB, "bggr": cv2.COLOR_BayerRG2RGB,
-    "gbrg": cv2.COLOR_BayerGR2RGB, "grbg": cv2.COLOR_BayerGB2RGB,
+    "rggb": "COLOR_BayerBG2RGB", "bggr": "COLOR_BayerRG2RGB",
+    "gbrg": "COLOR_BayerGR2RGB", "grbg": "COLOR_BayerGB2RGB",
 }
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1, "8UC1": 1, "8UC3": 3}
 
@@ -94,7 +97,7 @@ def image_from_ros(message: Any, what: str) -> np.ndarray:
         raw = _pixels(message, np.uint8 if encoding.endswith("8") else np.uint16, 1, what)
         if raw.dtype == np.uint16:
             raw = (raw >> 8).astype(np.uint8)
-        return cv2.cvtColor(raw, _BAYER[encoding[6:10]])
+        return cv2.cvtColor(raw, getattr(cv2, _BAYER[encoding[6:10]]))
     raise DataError(f"{what}: unsupported image encoding {encoding!r} (supported: {', '.join(COLOUR_ENCODINGS)})")
 
 

@@ -14,14 +14,16 @@ import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
-import cv2
 import numpy as np
 from pydantic import Field
 
 from slamfront import Camera, DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.data import DataPath
+from slamfront.lazy import lazy_module
 from slamfront_plugins.sources.recording import TimedRecordingConfig, given_camera, n_selected
 from slamfront_plugins.sources.rgbd import Intrinsics, KnownCamera
+
+cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import it
 
 
 class Video(Source):
