@@ -19,7 +19,7 @@ from slamfront.core.buffers import GrowingRows
 from slamfront.core.geometry import invert
 from slamfront.core.pnp import pnp_ransac
 from slamfront.matching import NO_MATCH, Matcher, TwoViewMatch
-from slamfront.messages import KeyframeMap
+from slamfront_plugins.localizers.messages import KeyframeMap
 
 
 @dataclass(frozen=True)

@@ -37,8 +37,9 @@ from slamfront.core.trajectory import absolute_trajectory_error, delta_pairs, ev
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.formats.npz import write_message_npz
 from slamfront.formats.poses import Trajectory, write_tum
-from slamfront.messages import FrameInfo, KeyframeAdded, KeyframeMap, Message, PoseEstimate
+from slamfront.messages import FrameInfo, Message
 from slamfront.report import plots
+from slamfront_plugins.localizers.messages import KeyframeAdded, KeyframeMap, PoseEstimate
 
 MAP_FILE = "keyframe_map.npz"
 """Where a run saves the keyframe map it built (``localizer.params.map`` reads it)."""
