@@ -17,7 +17,7 @@ geometrically consistent inliers, and a fit on them refuses hard in-map frames w
    second drive (0.3 m aside, turned 2 degrees, people and cars) is in the map; every
    second frame of the next world's second drive is out of it. An answer is right when
    the frame is in the map and its most similar keyframe is in the frame's region
-   (``slamfront.evaluation.localization.in_region``, as runs score it).
+   (``slamfront_plugins.localizers.evaluation.in_region``, as runs score it).
 2. *Pair level* (a map of one keyframe, like the unrelated-image test): every fourth
    place k, the reference frame at k as the only keyframe; right: the second drive's
    frame at k; wrong: the second drive's frame at k + 100 (same world, other place) and
@@ -51,12 +51,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import RESULTS, publish, table  # noqa: E402
 
 from slamfront.core.confidence import EVIDENCE, evidence, fit_logistic, logistic  # noqa: E402
-from slamfront.evaluation.localization import in_region, keyframe_spacing  # noqa: E402
 from slamfront.frame import Frame  # noqa: E402
-from slamfront.messages import PoseEstimate  # noqa: E402
 from slamfront.plugin import StageInputs  # noqa: E402
 from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor  # noqa: E402
+from slamfront_plugins.localizers.evaluation import in_region, keyframe_spacing  # noqa: E402
 from slamfront_plugins.localizers.keyframe import KeyframeLocalizer  # noqa: E402
+from slamfront_plugins.localizers.messages import PoseEstimate  # noqa: E402
 from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402
 
 SEEDS = (11, 13, 15, 31, 33, 35)

@@ -2,8 +2,10 @@
 the speed of replay and of the log tools, for any recipe.
 
 Run: .venv/bin/python benchmarks/bench_logging.py [RECIPE] [--max-frames N] [--set k=v ...]
-[--variants default,no-images,...] (default: the paired_demo recipe and every variant; for the
-Nordland hierarchical run: `nordland_hsl --variants default,no-images`).
+[--variants default,no-images,...] [--repeat N] (default: the demo recipe, `make run`'s, and
+every variant, once; for the demo's exact pixels against the JPEGs it logged before:
+`demo --variants default,jpeg --repeat 3`, run interleaved; for the Nordland hierarchical run:
+`nordland_hsl --variants default,no-images`).
 Writes results/logging.md (results/logging_<recipe>.md for another recipe).
 """
 
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import statistics
 import sys
 import tempfile
 import time
@@ -30,7 +33,10 @@ from slamfront.replay import replay_log  # noqa: E402
 from slamfront.runtime import RunResult, run_pipeline  # noqa: E402
 
 VARIANTS: dict[str, tuple[str, list[str]]] = {
-    "default": ("the recipe's log settings (slamfront default: JPEG 320 px, zstd, 1 MiB chunks, fsync every 5 s)", []),
+    "default": ("the recipe's log settings (slamfront default: JPEG 320 px, zstd, 1 MiB chunks, fsync every 5 s; "
+                "the demo: PNG at full width and float32 depth)", []),
+    "jpeg": ("JPEG 320 px, no depth (what the demo logged before it kept exact pixels)",
+             ["log.image_format=jpeg", "log.image_max_width=320", "log.depth=false", "log.depth_encoding=16UC1"]),
     "no-images": ("no images, no scene", ["log.images=false", "log.scene=false"]),
     "png": ("PNG at full width (replayable from the descriptor)", ["log.image_format=png", "log.image_max_width=100000"]),
     "lz4": ("lz4 chunks", ["log.compression=lz4"]),
@@ -46,6 +52,21 @@ def run_variant(recipe: str, overrides: Sequence[str], max_frames: int | None, o
     return run_pipeline(build_pipeline(loaded, str(path)), str(path), out, progress=False, max_frames=max_frames)
 
 
+def machine() -> str:
+    """CPU model, cores and Python, for the table's header."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import os
+
+    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
 def timed(work) -> float:  # type: ignore[no-untyped-def]
     start = time.perf_counter()
     work()
@@ -54,13 +75,15 @@ def timed(work) -> float:  # type: ignore[no-untyped-def]
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("recipe", nargs="?", default="paired_demo")
+    parser.add_argument("recipe", nargs="?", default="demo")
     parser.add_argument("--max-frames", type=int)
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument(
         "--variants", default=",".join(VARIANTS),
         help=f"comma-separated subset of {', '.join(VARIANTS)} (default: all; 'default' always runs first)",
     )
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="run the variants this many times, interleaved (A B A B); rows show medians")
     args = parser.parse_args(argv)
     chosen = ["default", *(v for v in args.variants.split(",") if v and v != "default")]
     unknown = [v for v in chosen if v not in VARIANTS]
@@ -71,16 +94,23 @@ def main(argv: Sequence[str] | None = None) -> None:
         root = Path(scratch)
         results: dict[str, RunResult] = {}
         wall: dict[str, float] = {}
+        samples: dict[str, list[dict]] = {key: [] for key in chosen}
+        for repeat in range(args.repeat):
+            for key in chosen:
+                overrides = VARIANTS[key][1]
+                start = time.perf_counter()
+                result = run_variant(args.recipe, [*args.overrides, *overrides], args.max_frames, root / f"{key}{repeat}")
+                wall.setdefault(key, time.perf_counter() - start)
+                results.setdefault(key, result)
+                samples[key].append(result.metrics)
         for key in chosen:
-            label, overrides = VARIANTS[key]
-            start = time.perf_counter()
-            result = run_variant(args.recipe, [*args.overrides, *overrides], args.max_frames, root / key)
-            wall[key] = time.perf_counter() - start
-            results[key] = result
-            m = result.metrics
+            median = {name: statistics.median(m[name] for m in samples[key]) for name in (
+                "seconds", "frames_per_second", "log_write_seconds", "log_write_fraction", "log_bytes_per_frame",
+                "log_write_mb_per_s", "log_syncs", "log_bytes")}
             rows.append([
-                label, m["seconds"], m["frames_per_second"], m["log_write_seconds"], 100 * m["log_write_fraction"],
-                m["log_bytes_per_frame"] / 1024, m["log_write_mb_per_s"], m["log_syncs"],
+                VARIANTS[key][0], median["seconds"], median["frames_per_second"], median["log_write_seconds"],
+                100 * median["log_write_fraction"], median["log_bytes_per_frame"] / 1024, median["log_bytes"] / 1e6,
+                median["log_write_mb_per_s"], median["log_syncs"],
             ])
         default = results["default"]
         log = default.log_path
@@ -104,12 +134,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         n_frames = default.metrics["n_frames"]
         size_mb = log.stat().st_size / 1e6
     body = "\n\n".join([
-        f"Recipe `{args.recipe}`{' ' + ' '.join(args.overrides) if args.overrides else ''}, {n_frames} frames. "
-        f"Machine: {platform.machine()}, Python {platform.python_version()}. Write time is measured inside "
-        "the run: encoding images, serialising every message, chunk compression, fsync and closing the file.",
+        f"Recipe `{args.recipe}`{' ' + ' '.join(args.overrides) if args.overrides else ''}, {n_frames} frames, "
+        f"each setting run {args.repeat} time(s), interleaved (medians). Machine: {machine()}. Write time is "
+        "measured inside the run: encoding images, serialising every message, chunk compression, fsync and "
+        "closing the file.",
         "## Log options: write overhead and size",
         table(
-            ["log setting", "run s", "frames/s", "log write s", "write % of run", "KiB/frame", "write MB/s", "fsyncs"],
+            ["log setting", "run s", "frames/s", "log write s", "write % of run", "KiB/frame", "log MB", "write MB/s",
+             "fsyncs"],
             rows,
         ),
         "Runs share the machine with other work, so compare the write share within a row (both parts of the "
@@ -117,10 +149,11 @@ def main(argv: Sequence[str] | None = None) -> None:
         f"## Replay and the log tools (default log, {size_mb:.2f} MB)",
         table(["operation", "seconds", "vs the original run"], tools),
         "A replay re-runs every stage from the first one whose inputs the log does not keep exactly "
-        "(`slamfront replay --help`): where the log keeps exact pixels (PNG at full width, as the Nordland recipes log them) "
-        "that is the descriptor, so the replay costs about what the run did.",
+        "(`slamfront replay --help`): where the log keeps exact pixels (PNG at full width and float32 depth, as "
+        "the demo and the Nordland recipes log them) that is the descriptor, so the replay costs about what the "
+        "run did.",
     ])
-    name = "logging" if args.recipe == "paired_demo" else f"logging_{Path(args.recipe).stem}"
+    name = "logging" if args.recipe == "demo" else f"logging_{Path(args.recipe).stem}"
     publish(name, f"Logging benchmark ({args.recipe})", body)
 
 

@@ -17,14 +17,15 @@ import numpy as np
 from tqdm import tqdm
 
 from slamfront.core.loops import LoopGroundTruth
-from slamfront.evaluation.bow import feature_share
 from slamfront.evaluation.loops import score_loops
 from slamfront.frame import Frame
 from slamfront.local_features import DESCRIPTORS, LocalFeatureExtractor
-from slamfront.messages import BowStatistics, Features, LoopResult
+from slamfront.messages import Features, LoopResult
 from slamfront.plugin import StageInputs
 from slamfront.recipe import EvalOptions
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+from slamfront_plugins.loop_detectors.bow_evaluation import feature_share
+from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 
 CACHE = Path(__file__).resolve().parent / ".cache"

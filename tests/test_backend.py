@@ -20,11 +20,12 @@ from slamfront.local_features import LocalFeatureExtractor
 from slamfront.matching import Matcher, resolve_max_distance
 from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import LoopConstraint, LoopResult, PoseGraphState, RelativePose, Trajectory
+from slamfront.messages import LoopResult, RelativePose, Trajectory
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.replay import replay_log
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
+from slamfront_plugins.backends.messages import LoopConstraint, PoseGraphState
 from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, verify
 from slamfront_plugins.sources.synthetic import SyntheticWorld
 from tests.posegraph_fixtures import ring_truth

@@ -12,11 +12,12 @@ from slamfront.core.loops import LoopGroundTruth, precision_recall
 from slamfront.core.memory import LinearTimeModel
 from slamfront.errors import PluginError
 from slamfront.frame import Frame
-from slamfront.messages import BowStatistics, Features, LoopResult
+from slamfront.messages import Features, LoopResult
 from slamfront.plugin import StageInputs
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 
 IMAGE = np.zeros((4, 4), np.uint8)
 DIM = 16

@@ -14,7 +14,8 @@ from slamfront.core.errors import CoreError
 from slamfront.errors import DataError
 from slamfront.formats.ply import write_ply
 from slamfront.mcaplog.foxglove import point_cloud
-from slamfront.messages import CloudRegistration, PointCloud, RegisteredTrajectory
+from slamfront.messages import PointCloud
+from slamfront_plugins.registrations.messages import CloudRegistration, RegisteredTrajectory
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 510.0, 239.5], [0.0, 0.0, 1.0]])
 

@@ -7,11 +7,14 @@ import contextlib
 import io
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from slamfront.cli import main
+from slamfront.mcaplog.reader import summarize
 from slamfront.recipe import load_recipe
 from tests.helpers import layout_problems
 
@@ -77,3 +80,19 @@ def test_the_demo_log_opens_with_the_shipped_layout(demo_runs: tuple[Path, list[
     out, _ = demo_runs
     layout = json.loads((REPO / "foxglove" / "slamfront-layout.json").read_text())
     assert layout_problems(layout, out / "run.mcap") == []  # every tab: loop closure and back end
+
+
+def test_the_demo_log_validates_replays_and_compares_equal_as_a_user_runs_it(
+    demo_runs: tuple[Path, list[str]], tmp_path: Path
+) -> None:
+    """`slamfront inspect LOG --validate`, `slamfront replay LOG -o X` and `slamfront diff LOG X`,
+    each in a fresh process that knows the message types only from the installed plugins."""
+    out, _ = demo_runs
+    replayed = tmp_path / "replayed"
+    for args in (["inspect", out, "--validate"], ["replay", out, "-o", replayed, "-q"], ["diff", out, replayed]):
+        done = subprocess.run([sys.executable, "-m", "slamfront", *map(str, args)], capture_output=True, text=True,
+                              timeout=600)
+        assert done.returncode == 0, f"slamfront {args[0]}: {done.stdout[-3000:]}{done.stderr[-3000:]}"
+    assert "identical:" in done.stdout
+    replay = summarize(replayed / "run.mcap").metadata["replay"]
+    assert replay["from"] == "descriptor" and replay["rerun_stages"] == "descriptor,place_map,loop_detector,backend"

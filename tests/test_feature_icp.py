@@ -14,12 +14,13 @@ import pytest
 from slamfront import DataError, Frame, StageInputs
 from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
-from slamfront.messages import CloudRegistration, LoopResult, PointCloud, RegisteredTrajectory, RelativePose
+from slamfront.messages import LoopResult, PointCloud, RelativePose
 from slamfront.recipe import build_pipeline, load_recipe
 from slamfront.replay import replay_log
 from slamfront.runtime import run_pipeline
 from slamfront_plugins.registrations.config import FeatureIcpConfig
 from slamfront_plugins.registrations.feature_icp import FeatureIcp
+from slamfront_plugins.registrations.messages import CloudRegistration, RegisteredTrajectory
 from slamfront_plugins.sources.rgbd import RgbdFolder
 from tests.helpers import stage_topic_bytes
 

@@ -221,7 +221,7 @@ def test_a_saved_map_gives_bit_identical_answers_without_the_reference_drive(sma
     assert again.metrics["n_keyframes"] == small.metrics["n_keyframes"]
     # the map file is data: numpy reads it without pickle, and it round-trips unchanged
     from slamfront.formats.npz import read_message_npz, write_message_npz
-    from slamfront.messages import KeyframeMap
+    from slamfront_plugins.localizers.messages import KeyframeMap
 
     loaded = read_message_npz(saved, KeyframeMap)
     assert loaded.same_as(read_message_npz(write_message_npz(tmp_path / "copy.npz", loaded), KeyframeMap))

@@ -10,7 +10,8 @@ import numpy as np
 
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.evaluation.frames import FrameOverview
-from slamfront.messages import FrameInfo, LoopConstraint, LoopResult
+from slamfront.messages import FrameInfo, LoopResult
+from slamfront_plugins.backends.messages import LoopConstraint
 
 
 def _overview(with_backend: bool) -> tuple[FrameOverview, SimpleNamespace]:

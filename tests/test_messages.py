@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from slamfront.messages import Features, FrameInfo, LoopResult, RunMetrics, decode_any, message_class
+from slamfront.message_types import shared_message_types
+from slamfront.messages import Features, FrameInfo, LoopResult, RunMetrics, decode_any
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8, np.int64, np.int16, ">f4"])
@@ -51,7 +52,7 @@ def test_schema_lists_every_field_and_lookup_by_name() -> None:
     assert set(schema["properties"]) == {"frame", "match", "confidence", "accepted", "candidates", "reason",
                                           "match_frames", "searched"}
     assert schema["title"] == "slamfront.LoopResult"
-    assert message_class("slamfront.RunMetrics") is RunMetrics
+    assert shared_message_types().get("slamfront.RunMetrics") is RunMetrics
 
 
 def test_plotted_arrays_are_also_plain_numbers_and_still_round_trip() -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from slamfront.errors import DataError
 from slamfront.formats.npz import read_message_npz, write_message_npz
-from slamfront.messages import KeyframeMap, PoseEstimate
+from slamfront_plugins.localizers.messages import KeyframeMap, PoseEstimate
 
 
 def _map() -> KeyframeMap:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
 from slamfront.errors import LogError, PluginError, RecipeError
@@ -13,7 +12,7 @@ from slamfront.mcaplog.diff import diff_logs
 from slamfront.mcaplog.reader import read_messages, summarize
 from slamfront.mcaplog.topics import LOOP_TRUTH_TOPIC
 from slamfront.recipe import build_pipeline, parse_recipe
-from slamfront.replay import RecordedStage, log_recipe, replay_log
+from slamfront.replay import LogRecording, RecordedStage, log_recipe, plan_replay, replay_log
 from slamfront.runtime import RunResult, run_pipeline
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
@@ -114,7 +113,8 @@ def test_replay_with_the_embedded_recipe_reproduces_every_downstream_message(ori
     assert summary.metadata["replay"]["recorded_stages"] == "descriptor"
     for key in ("recall_at_100p", "auc_pr", "n_queries", "n_searches", "n_frames"):
         assert replay.metrics[key] == original.metrics[key]
-    assert "descriptor" not in replay.metrics["timing"]  # it was read, not run
+    # it was read, not run: the log says so where it names each stage's plugin
+    assert summary.metadata["plugins"]["descriptor"].endswith(f"read from {original.log_path}")
     last = [m.decoded.message for m in read_messages(replay.log_path, ["/log"])][-1]
     assert "replay of" in last and f"from {first_rerun}" in last
 
@@ -188,12 +188,23 @@ def test_replay_refuses_what_the_log_cannot_feed(paired_run: RunResult, cli, tmp
     assert code == 2 and err.count("\n") == 1 and "has no place_map stage" in err
 
 
-def test_a_stage_read_from_the_log_shows_its_identity_not_its_state() -> None:
-    stage = RecordedStage(DownsampledImage(), "loop_detector")
+def test_a_stage_read_from_the_log_shows_its_identity_not_its_state(paired_run: RunResult) -> None:
+    plan = plan_replay(paired_run.log_path, from_kind="loop_detector")
+    make = RecordedStage.substitute(LogRecording(plan))
+    stage = make(DownsampledImage, DownsampledImage.Config(width=32))
+    assert isinstance(stage, RecordedStage) and type(stage).__name__ == "RecordedDownsampledImage"
     assert stage.name == "downsampled" and stage.kind == "descriptor" and stage.produces_global
-    assert stage.config.width == 32
-    with pytest.raises(PluginError, match="replay --from descriptor"):
-        stage.describe(np.zeros((4, 4), np.uint8))
+    assert stage.config.width == 32 and not hasattr(stage, "describe")  # its identity, not its methods or state
+
+
+def test_a_later_stage_that_needs_a_stage_read_from_the_log_is_refused_before_the_first_frame(
+    tmp_path: Path,
+) -> None:
+    original = _run(_recipe(REPLAYED_PIPELINES["hierarchical_sequence"]), tmp_path / "a")
+    with pytest.raises(PluginError, match=r"loop_detector: .*read from the log: they give their logged messages, "
+                                          r"not their state; replay from an earlier stage"):
+        replay_log(original.log_path, tmp_path / "b", from_kind="loop_detector")
+    assert not (tmp_path / "b" / "run.mcap").exists()
 
 
 def test_replay_of_a_run_that_failed_leaves_out_its_unfinished_frame(

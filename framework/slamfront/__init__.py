@@ -14,8 +14,10 @@ from typing import TYPE_CHECKING, Any
 from slamfront.errors import DataError, LogError, PluginError, RecipeError, SlamfrontError
 
 if TYPE_CHECKING:
+    from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
     from slamfront.frame import Camera, Frame
     from slamfront.hookspecs import hookimpl
+    from slamfront.messages import Message
     from slamfront.plugin import (
         Backend,
         Descriptor,
@@ -34,6 +36,8 @@ _LAZY = {
     "Camera": "slamfront.frame",
     "Frame": "slamfront.frame",
     "hookimpl": "slamfront.hookspecs",
+    "Message": "slamfront.messages",
+    **{name: "slamfront.evaluation.base" for name in ("Evaluation", "EvaluationContext", "EvaluationReport")},
     **{
         name: "slamfront.plugin"
         for name in ("Backend", "Descriptor", "Localizer", "LoopDetector", "PlaceMap", "Plugin", "PluginConfig",
@@ -60,10 +64,14 @@ __all__ = [
     "Camera",
     "DataError",
     "Descriptor",
+    "Evaluation",
+    "EvaluationContext",
+    "EvaluationReport",
     "Frame",
     "Localizer",
     "LogError",
     "LoopDetector",
+    "Message",
     "PlaceMap",
     "Plugin",
     "PluginConfig",

@@ -26,6 +26,8 @@ from slamfront.messages import Features, Message
 if TYPE_CHECKING:
     from slamfront.core.loops import LoopGroundTruth
     from slamfront.datasets import DatasetDownload
+    from slamfront.feeds import FrameLogger
+    from slamfront.recipe import LogOptions
 
 
 
@@ -96,6 +98,20 @@ class Source(Plugin):
         source has no tolerance to change.
         """
         return None
+
+    def frame_logger(self, options: LogOptions) -> FrameLogger:
+        """What writes each frame's own topics to the run's log (info, image, depth,
+        calibration, pose). The default encodes the frame as the recipe's ``log`` options
+        say; a source whose frames arrive already encoded may return a logger that copies
+        them (a replayed log's source does)."""
+        from slamfront.feeds import FrameLogger
+
+        return FrameLogger(options)
+
+    def ending_note(self) -> str:
+        """Said at the end of the run's last ``/log`` line: what a reader of the log should
+        know about how the frames were read (e.g. frames left out). Default: nothing."""
+        return ""
 
 
 @dataclass

@@ -9,7 +9,7 @@ as YAML, so ``--set loop_detector.params.threshold=0.3`` gives a float).
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -17,11 +17,10 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from slamfront.data import data_root
 from slamfront.errors import PluginError, RecipeError
 from slamfront.limits import check_limit
 from slamfront.plugin import STAGE_KINDS, Kind, Plugin, PluginConfig, Source, Stage
-from slamfront.registry import PluginRegistry
+from slamfront.registry import PluginRegistry, config_context
 from slamfront.resources import shipped_dir
 from slamfront.suggest import did_you_mean, model_keys_at
 from slamfront.text import shorten
@@ -297,7 +296,7 @@ def validate_stage_params(
     """
     for module in recipe.plugin_modules:
         registry.register_module(module)
-    context = {"data_root": data or data_root()}
+    context = config_context(registry, data)
     configs: dict[Kind, tuple[type[Plugin], PluginConfig]] = {}
     for kind, spec in recipe.stage_specs().items():
         try:
@@ -319,14 +318,15 @@ def build_pipeline(
     origin: str,
     registry: PluginRegistry | None = None,
     data: Path | None = None,
-    source: Source | None = None,
+    substitutes: Mapping[Kind, Callable[[type[Plugin], PluginConfig], Plugin]] | None = None,
 ) -> Pipeline:
     """Construct every plugin of ``recipe`` from its validated params and check them.
 
     :param origin: the recipe's file name, for messages.
     :param data: data root for relative paths (default :func:`slamfront.data.data_root`).
-    :param source: use this source instead of constructing ``recipe.source`` (a replay
-        reads its frames from a log).
+    :param substitutes: for some kinds, what to construct instead of the recipe's plugin,
+        called with its class and validated config (a replay substitutes a source that
+        reads the log and stages that give back what the log recorded).
     :raises RecipeError: a param is invalid (names ``<stage>.params.<field>``).
     :raises PluginError: a plugin is unknown or incompatible with another.
     """
@@ -334,8 +334,9 @@ def build_pipeline(
     configs = validate_stage_params(recipe, origin, registry, data)
     for problem in registry.broken:  # every plugin this recipe names was found: the broken ones are not its
         logger.warning("%s (%s does not use it)", problem, origin)
+    substitutes = substitutes or {}
     plugins: dict[Kind, Plugin] = {
-        kind: source if kind == "source" and source is not None else cls(config)
+        kind: substitutes[kind](cls, config) if kind in substitutes else cls(config)
         for kind, (cls, config) in configs.items()
     }
     for kind, plugin in plugins.items():

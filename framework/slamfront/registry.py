@@ -17,7 +17,9 @@ import os
 import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 from pydantic import BaseModel
@@ -26,6 +28,10 @@ from slamfront import hookspecs
 from slamfront.errors import PluginError
 from slamfront.plugin import KIND_BASES, KINDS, Kind, Plugin
 from slamfront.suggest import did_you_mean
+
+if TYPE_CHECKING:
+    from slamfront.evaluation.base import Evaluation
+    from slamfront.message_types import MessageTypes
 
 ENTRY_POINT_GROUP = "slamfront"
 
@@ -216,6 +222,51 @@ class PluginRegistry:
         """Names of the registered plugin modules."""
         return sorted(self._manager.get_name(p) or str(p) for p in self._manager.get_plugins())
 
+    # --- message types and evaluations (hooks called when a command needs them) ----------
+
+    def _impl_origin(self, impl: pluggy.HookImpl) -> str:
+        """Who implements a hook, for messages: ``slamfront 0.1.0``, ``local module my_plugins``."""
+        module = impl.plugin
+        if not inspect.ismodule(module):
+            return f"plugin {impl.plugin_name}"
+        dist, version = self._distribution_of(module)
+        return f"{dist} {version} ({module.__name__})" if dist else f"local module {module.__name__}"
+
+    def message_types(self) -> MessageTypes:
+        """The shared message types and every type the registered modules declare
+        (``slamfront_message_types``), by schema name.
+
+        :raises PluginError: a declared class is not a message type, or two modules
+            declare one schema name (naming both).
+        """
+        from slamfront.message_types import MessageTypes
+
+        declared = []
+        for impl in self._manager.hook.slamfront_message_types.get_hookimpls():
+            origin = self._impl_origin(impl)
+            declared.extend((cls, origin) for cls in impl.function() or ())
+        return MessageTypes(declared)
+
+    def evaluations(self, kinds: Iterable[str]) -> list[Evaluation]:
+        """Fresh evaluations the registered modules contribute (``slamfront_evaluations``)
+        for a run whose recipe has the plugin kinds ``kinds``, in registration order.
+
+        :raises PluginError: an implementation returned something that is not an Evaluation.
+        """
+        from slamfront.evaluation.base import Evaluation
+
+        arguments = {"kinds": frozenset(kinds)}
+        chosen: list[Evaluation] = []
+        for impl in self._manager.hook.slamfront_evaluations.get_hookimpls():
+            for evaluation in impl.function(**{name: arguments[name] for name in impl.argnames}) or ():
+                if not isinstance(evaluation, Evaluation):
+                    raise PluginError(
+                        f"{self._impl_origin(impl)}: slamfront_evaluations returned {evaluation!r}, "
+                        "which does not derive from slamfront.Evaluation"
+                    )
+                chosen.append(evaluation)
+        return chosen
+
 
 def _hookimpl_problem(module: ModuleType) -> str | None:
     """What is wrong with ``module``'s hook implementations (a misspelt hook, an argument
@@ -255,3 +306,31 @@ def _declaration_problem(cls: object, kind: Kind) -> str | None:
     if not (inspect.isclass(cls.Config) and issubclass(cls.Config, BaseModel)):
         return f"{kind} plugin {name!r}: Config is not a pydantic model"
     return None
+
+
+# --- the registry inside plugin configs -------------------------------------------------
+
+CONTEXT_KEY = "registry"
+"""Where :func:`config_context` puts the run's registry in pydantic's validation context."""
+
+
+def config_context(registry: PluginRegistry, data: Path | None = None) -> dict[str, Any]:
+    """The validation context every plugin ``Config`` is validated with: the data root
+    (relative ``DataPath`` fields resolve under it) and the run's plugin registry (a config
+    that names other plugins, like ``mixed_scenes``'s inner sources, looks them up there)."""
+    from slamfront.data import data_root
+
+    return {"data_root": data or data_root(), CONTEXT_KEY: registry}
+
+
+def registry_in_context(context: Any) -> PluginRegistry:
+    """The run's registry, inside a ``Config`` validator (``info.context``).
+
+    :raises ValueError: the config is validated without one (outside a recipe); pydantic
+        reports it as the field's error.
+    """
+    registry = (context or {}).get(CONTEXT_KEY) if isinstance(context, dict) or context is None else None
+    if not isinstance(registry, PluginRegistry):
+        raise ValueError("names other plugins, so it is validated with the run's plugin registry "
+                         "(slamfront.registry.config_context); build it through a recipe")
+    return registry

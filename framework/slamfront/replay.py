@@ -2,20 +2,24 @@
 
 A log holds everything a run saw and produced: the frames' info (index, time, traversal,
 pose), images, intrinsics, every stage's outputs, each stage's end-of-run statistics,
-the source's loop ground truth and the resolved recipe. A replay reads the frames from
-the log instead of the source, copies the messages of the stages before ``STAGE`` to
-the new log and feeds them to the later stages, which run again with the recipe given
-(the log's own by default). The stages read from the log are never called.
+the source's loop ground truth and the resolved recipe. A replay is an ordinary run
+through the same interfaces as any other: its source (:class:`RecordedSource`) reads the
+frames from the log, and each stage before ``STAGE`` is substituted by a
+:class:`RecordedStage` that gives back what the original stage logged; the later stages
+run again with the recipe given (the log's own by default). Message types come from the
+installed plugins (and, with ``--trust-log``, the recipe's plugin modules), never from a
+module the log names.
 
 A stage that reads pixels (``Stage.reads_pixels``: descriptors, localizers,
 registration) can only be re-run when the log stores them exactly: PNG images at full
-width and depth as ``32FC1``. By default, logs keep 320-px JPEGs, so ``--from``
-defaults to the first stage after the last one that needs pixels.
+width and depth as ``32FC1`` (``log.image_format: auto``, the default, does so when a
+stage after the first reads pixels). Otherwise ``--from`` defaults to the first stage
+after the last one that needs pixels.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,9 +31,8 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from pydantic import ConfigDict, ValidationError
 
 from slamfront.core.loops import LoopGroundTruth
-from slamfront.data import data_root
 from slamfront.errors import LogError, PluginError, RecipeError
-from slamfront.feeds import FrameFeed, FrameStep
+from slamfront.feeds import FrameLogger
 from slamfront.frame import Camera, Frame
 from slamfront.mcaplog import foxglove
 from slamfront.mcaplog.reader import (
@@ -49,16 +52,17 @@ from slamfront.mcaplog.topics import (
     FRAMES_TOPIC,
     IMAGE_TOPIC,
     LOOP_TRUTH_TOPIC,
-    STATISTICS_SUFFIX,
     stage_of,
+    statistics_topic,
 )
 from slamfront.mcaplog.validate import check_channels, check_messages
 from slamfront.mcaplog.writer import RunLogWriter
-from slamfront.messages import FrameInfo, LoopTruth, RunEvent, StageStatistics, message_class
+from slamfront.message_types import MessageTypes
+from slamfront.messages import FrameInfo, LoopTruth, Message, RunEvent, StageStatistics
 from slamfront.outputs import same_file
-from slamfront.plugin import STAGE_KINDS, PluginConfig, Source, Stage
-from slamfront.recipe import Recipe, StageSpec, build_pipeline, load_yaml, parse_recipe
-from slamfront.registry import PluginRegistry
+from slamfront.plugin import STAGE_KINDS, Plugin, PluginConfig, Source, Stage, StageInputs
+from slamfront.recipe import LogOptions, Recipe, StageSpec, build_pipeline, load_yaml, parse_recipe
+from slamfront.registry import PluginRegistry, config_context
 from slamfront.runtime import RunResult, execute_run
 from slamfront.trust import refuse_untrusted
 
@@ -96,6 +100,10 @@ class ReplayPlan:
     """Some re-run stage reads pixels: images (and depth) are decoded from the log."""
     summary: LogSummary
     registry: PluginRegistry
+    types: MessageTypes
+    """What decodes the log's messages: the registry's message types."""
+    pixels_problem: str | None = None
+    """Why the log's images/depth are not the frames' exact pixels (None when they are)."""
     damage: str | None = None
     """What the log lost, when a damaged log is replayed as far as it can be read."""
 
@@ -121,7 +129,7 @@ def _same_stage(kind: str, a: StageSpec | None, b: StageSpec | None, registry: P
         return False
     try:
         config = registry.get(kind, a.plugin).cls.Config  # type: ignore[arg-type]
-        context = {"data_root": data_root()}
+        context = config_context(registry)
         return config.model_validate(a.params, context=context).model_dump(mode="json") == config.model_validate(
             b.params, context=context
         ).model_dump(mode="json")
@@ -129,15 +137,15 @@ def _same_stage(kind: str, a: StageSpec | None, b: StageSpec | None, registry: P
         return a.params == b.params
 
 
-def _earliest_replayable(log: Path, kinds: list[str], pixel_readers: list[str], problem: str | None) -> str:
-    """The first stage after the last one that reads pixels the log does not keep exactly."""
+EVALUATION = "evaluation"
+"""``--from evaluation``: read every stage from the log, evaluate and report again."""
+
+
+def _earliest_replayable(kinds: list[str], pixel_readers: list[str], problem: str | None) -> str:
+    """The first stage after the last one that reads pixels the log does not keep exactly
+    (:data:`EVALUATION` when there is none: only the evaluation runs again)."""
     later = kinds[kinds.index(pixel_readers[-1]) + 1 :] if problem and pixel_readers else kinds
-    if not later:
-        raise LogError(
-            f"{log}: every stage of the recipe needs the frames' pixels and {problem}; "
-            "re-run the recipe instead (`slamfront inspect LOG --recipe` prints it)"
-        )
-    return later[0]
+    return later[0] if later else EVALUATION
 
 
 def plan_replay(
@@ -152,7 +160,8 @@ def plan_replay(
     """Decide what a replay of ``log`` reads and what it re-runs.
 
     :param recipe: the recipe to replay with (default: the log's own).
-    :param from_kind: the first stage to run again (default: the earliest the log can feed).
+    :param from_kind: the first stage to run again (default: the earliest the log can feed;
+        :data:`EVALUATION` reads every stage from the log and only evaluates again).
     :param trust_log: let the log's recipe import its ``plugin_modules`` and name paths
         outside the data root (:mod:`slamfront.trust`); refused otherwise.
     :param salvage: replay a damaged log as far as it can be read (else refused).
@@ -191,18 +200,18 @@ def plan_replay(
             return False
         cls = registry.get(kind, spec.plugin).cls
         try:
-            config = cls.Config.model_validate(spec.params, context={"data_root": data_root()})
+            config = cls.Config.model_validate(spec.params, context=config_context(registry))
         except ValidationError:  # reported with its field when the pipeline is built
             return bool(cls.reads_pixels)
         return bool(cls.reads_pixels_with(config))
 
     if from_kind is None:
-        from_kind = _earliest_replayable(log, kinds, [k for k in kinds if reads_pixels(k)], problem)
-    if from_kind not in STAGE_KINDS:
-        raise RecipeError(f"--from {from_kind}: not a stage kind; stages are {', '.join(STAGE_KINDS)}")
-    if getattr(wanted, from_kind) is None:
+        from_kind = _earliest_replayable(kinds, [k for k in kinds if reads_pixels(k)], problem)
+    if from_kind not in (*STAGE_KINDS, EVALUATION):
+        raise RecipeError(f"--from {from_kind}: not a stage kind; stages are {', '.join(STAGE_KINDS)} (or {EVALUATION})")
+    if from_kind != EVALUATION and getattr(wanted, from_kind) is None:
         raise RecipeError(f"--from {from_kind}: the recipe has no {from_kind} stage (it has {', '.join(kinds)})")
-    start = STAGE_KINDS.index(from_kind)
+    start = STAGE_KINDS.index(from_kind) if from_kind != EVALUATION else len(STAGE_KINDS)
     recorded = tuple(k for k in kinds if STAGE_KINDS.index(k) < start and getattr(original, k) is not None)
     rerun = tuple(k for k in kinds if STAGE_KINDS.index(k) >= start and getattr(wanted, k) is not None)
     for kind in kinds:
@@ -231,7 +240,8 @@ def plan_replay(
     effective = parse_recipe(merged, recipe_origin)
     return ReplayPlan(
         log=log, original=original, recipe=effective, from_kind=from_kind, recorded=recorded, rerun=rerun,
-        needs_pixels=bool(pixel_stages), summary=summary, registry=registry,
+        needs_pixels=bool(pixel_stages), summary=summary, registry=registry, types=registry.message_types(),
+        pixels_problem=problem,
         damage=None if summary.complete else summary.problem,
     )
 
@@ -242,20 +252,111 @@ class RecordedConfig(PluginConfig):
     model_config = ConfigDict(extra="allow", frozen=True)
 
 
+@dataclass
+class RecordedFrame:
+    """One frame of the original run as its log holds it."""
+
+    info: LoggedMessage
+    """Its ``/frames`` message."""
+    logged: list[LoggedMessage] = field(default_factory=list)
+    """Its other frame topics (image, depth, calibration, poses), as written."""
+    outputs: dict[str, list[LoggedMessage]] = field(default_factory=dict)
+    """What each stage read from the log logged while the frame was processed, in order."""
+
+
+class LogRecording:
+    """The original run, read once from its log in the order it was written: frame by frame,
+    then what the stages logged at the end. The replay's source and its recorded stages
+    share it, so the log is read once however many stages it feeds.
+
+    Messages written between one frame's ``/frames`` message and the next belong to that
+    frame; a ``finish`` event on ``/run/events`` starts the end of the run. A log that
+    ends without it (the run was interrupted) loses its last frame, whose stage outputs
+    may be incomplete.
+    """
+
+    def __init__(self, plan: ReplayPlan) -> None:
+        self.plan = plan
+        self.current: RecordedFrame | None = None
+        """The frame the source gave last."""
+        self.finish: dict[str, list[LoggedMessage]] = {}
+        self.statistics: dict[str, dict[str, Any]] = {}
+        self.truth: LoopTruth | None = None
+        self.dropped_last = False
+        self.lost_frames = 0
+        """Frames left out because damage was met while gathering their messages."""
+
+    def frames(self) -> Iterator[RecordedFrame]:
+        """The original frames, each with what the recorded stages logged for it."""
+        recorded = set(self.plan.recorded)
+        pending: RecordedFrame | None = None
+        finished = False
+        for logged in read_messages_and_gaps(self.plan.log, strict=False, types=self.plan.types):
+            if logged is None:  # damage: the frame being gathered may lack messages, leave it out
+                self.lost_frames += pending is not None
+                pending = None
+                continue
+            topic, kind = logged.topic, stage_of(logged.topic)
+            if topic == LOOP_TRUTH_TOPIC:
+                self.truth = logged.decoded
+            elif finished:
+                if kind in recorded and topic == statistics_topic(kind):
+                    statistics: StageStatistics = logged.decoded
+                    self.statistics[kind] = dict(statistics.values)
+                elif kind in recorded:
+                    self.finish.setdefault(kind, []).append(logged)
+            elif topic == FRAMES_TOPIC:
+                if pending is not None:
+                    yield self._enter(pending)
+                pending = RecordedFrame(logged)
+            elif topic == EVENTS_TOPIC:
+                event: RunEvent = logged.decoded
+                if event.event == "finish":
+                    if pending is not None:
+                        yield self._enter(pending)
+                    pending, finished = None, True
+            elif pending is not None:
+                if kind is None and topic in FRAME_TOPICS:
+                    pending.logged.append(logged)
+                elif kind in recorded and topic != statistics_topic(kind):
+                    pending.outputs.setdefault(kind, []).append(logged)
+        self.dropped_last = pending is not None
+
+    def _enter(self, frame: RecordedFrame) -> RecordedFrame:
+        self.current = frame
+        return frame
+
+
+class RecordedFrames(FrameLogger):
+    """Logs a replayed frame by copying the original records unchanged (images stay as
+    they were encoded, whatever the replay decodes from them)."""
+
+    def __init__(self, recording: LogRecording) -> None:
+        self.recording = recording
+
+    def write(self, log: RunLogWriter, frame: Frame) -> FrameInfo:
+        current = self.recording.current
+        assert current is not None and frame.index == current.info.decoded.frame
+        for logged in (current.info, *current.logged):
+            log.copy(logged)
+        return current.info.decoded
+
+
 class RecordedSource(Source):
-    """The original run's source as seen through its log (frames come from :class:`ReplayFeed`)."""
+    """The original run's source as seen through its log: its frames (pixels decoded
+    from the logged images when a re-run stage needs them), its loop ground truth."""
 
     name = "recorded"
 
-    def __init__(self, plan: ReplayPlan) -> None:
+    def __init__(self, plan: ReplayPlan, recording: LogRecording) -> None:
         super().__init__(RecordedConfig.model_validate(plan.original.source.params))
         self.plan = plan
+        self.recording = recording
         self.name = plan.original.source.plugin  # type: ignore[misc]
         recorded = plan.summary.metadata.get("plugins", {}).get("source", plan.original.source.plugin)
         self.provenance = f"{recorded}, replayed from {plan.log}"
-        self.truth: LoopGroundTruth | None = None
-        self.truth_seen = False
         self.truth_note = ""
+        self._truth: LoopGroundTruth | None = None
 
     def __len__(self) -> int:
         try:
@@ -264,21 +365,27 @@ class RecordedSource(Source):
             return 0
 
     def frames(self) -> Iterator[Frame]:
-        return (step.frame for step in ReplayFeed(self.plan, self).steps())
+        for recorded in self.recording.frames():
+            yield self._frame(recorded)
+
+    def frame_logger(self, options: LogOptions) -> FrameLogger:
+        return RecordedFrames(self.recording)
 
     def loop_ground_truth(self) -> LoopGroundTruth | None:
         """The ground truth logged by the original run; failing that, the original source's."""
-        if not self.truth_seen:
-            for logged in read_messages(self.plan.log, [LOOP_TRUTH_TOPIC], strict=False):
-                self.take_truth(logged)
-        if self.truth is None and not self.truth_note:
-            self.truth = self._from_original_source()
-        return self.truth
+        if self._truth is None and not self.truth_note:
+            message = self.recording.truth or self._logged_truth()
+            if message is not None:
+                self._truth = LoopGroundTruth(queries=message.queries, indptr=message.indptr, matches=message.matches)
+            else:
+                self._truth = self._from_original_source()
+        return self._truth
 
-    def take_truth(self, logged: LoggedMessage) -> None:
-        message: LoopTruth = logged.decoded
-        self.truth = LoopGroundTruth(queries=message.queries, indptr=message.indptr, matches=message.matches)
-        self.truth_seen = True
+    def _logged_truth(self) -> LoopTruth | None:
+        found = None
+        for logged in read_messages(self.plan.log, [LOOP_TRUTH_TOPIC], strict=False, types=self.plan.types):
+            found = logged.decoded
+        return found
 
     def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth | None:
         """Other tolerances (``eval.tolerances``) are not in the log: they come from the
@@ -290,8 +397,8 @@ class RecordedSource(Source):
 
     def _original_source(self) -> Source:
         spec = self.plan.original.source
-        cls = PluginRegistry(modules=self.plan.original.plugin_modules).get("source", spec.plugin).cls
-        config = cls.Config.model_validate(spec.params, context={"data_root": data_root()})
+        cls = self.plan.registry.get("source", spec.plugin).cls
+        config = cls.Config.model_validate(spec.params, context=config_context(self.plan.registry))
         return cls(config)  # type: ignore[return-value]
 
     def _from_original_source(self) -> LoopGroundTruth | None:
@@ -303,121 +410,30 @@ class RecordedSource(Source):
         self.truth_note = "; loop ground truth rebuilt from the recipe's source (the log has none)"
         return truth
 
+    def ending_note(self) -> str:
+        plan, recording = self.plan, self.recording
+        read = ", ".join(plan.recorded) or "none"
+        note = f"; replay of {plan.log} from {plan.from_kind} (read from the log: {read})"
+        if recording.dropped_last:
+            note += "; the log ends without the run's finish, so its last frame was left out"
+        if plan.damage:
+            lost = f", {recording.lost_frames} frames next to the damage were left out" if recording.lost_frames else ""
+            note += f"; the log is damaged and was replayed as far as it could be read{lost} (lost: {plan.damage})"
+        return note + self.truth_note
 
-class RecordedStage:
-    """Stands for a stage read from the log in ``inputs.stages``: its name, kind, version,
-    config and class flags are there, its state is not (the stage never ran)."""
-
-    _PUBLIC = frozenset({"name", "kind", "version", "config", "requires"})
-
-    def __init__(self, stage: Stage, from_kind: str) -> None:
-        self._stage = stage
-        self._from_kind = from_kind
-
-    def __getattr__(self, attribute: str) -> Any:
-        stage = self.__dict__["_stage"]
-        on_class = getattr(type(stage), attribute, None)
-        if attribute in self._PUBLIC or isinstance(on_class, (bool, int, float, str, tuple)):
-            return getattr(stage, attribute)
-        raise PluginError(
-            f"the {stage.kind} stage ({stage.name}) is read from the log in this replay (--from "
-            f"{self.__dict__['_from_kind']}), so a later stage cannot use its {attribute!r}; replay --from {stage.kind}"
-        )
-
-
-@dataclass
-class _PendingFrame:
-    info: LoggedMessage
-    logged: list[LoggedMessage] = field(default_factory=list)
-    recorded: dict[str, list[LoggedMessage]] = field(default_factory=dict)
-
-
-class ReplayFeed(FrameFeed):
-    """Frames and recorded stage outputs read from a log, in the order they were written.
-
-    Messages written between one frame's ``/frames`` message and the next belong to that
-    frame; a ``finish`` event on ``/run/events`` starts the end of the run. A log that
-    ends without it (the run was interrupted) loses its last frame, whose stage outputs
-    may be incomplete.
-    """
-
-    def __init__(self, plan: ReplayPlan, source: RecordedSource) -> None:
-        self.plan = plan
-        self._source = source
-        self.recorded_kinds = frozenset(plan.recorded)
-        self._finish: dict[str, list[LoggedMessage]] = {}
-        self._statistics: dict[str, dict[str, Any]] = {}
-        self._finished = False
-        self._dropped_last = False
-        self._lost_frames = 0
-        self._check_recorded_types()
-
-    def _check_recorded_types(self) -> None:
-        for topic in self.plan.summary.topics:
-            if stage_of(topic.topic) in self.recorded_kinds and topic.message_encoding == "json":
-                message_class(topic.schema_name)  # raises LogError naming the missing type
-
-    @property
-    def source(self) -> Source:
-        return self._source
-
-    def total(self) -> int | None:
-        return len(self._source) or None
-
-    def steps(self) -> Iterator[FrameStep]:
-        pending: _PendingFrame | None = None
-        for logged in read_messages_and_gaps(self.plan.log, strict=False):
-            if logged is None:  # damage: the frame being gathered may lack messages, leave it out
-                self._lost_frames += pending is not None
-                pending = None
-                continue
-            topic = logged.topic
-            if topic == LOOP_TRUTH_TOPIC:
-                self._source.take_truth(logged)
-            elif self._finished:
-                self._after_finish(logged)
-            elif topic == FRAMES_TOPIC:
-                if pending is not None:
-                    yield self._step(pending)
-                pending = _PendingFrame(logged)
-            elif topic == EVENTS_TOPIC:
-                event: RunEvent = logged.decoded
-                if event.event == "finish":
-                    if pending is not None:
-                        yield self._step(pending)
-                    pending, self._finished = None, True
-            elif pending is not None:
-                kind = stage_of(topic)
-                if kind is None and topic in FRAME_TOPICS:
-                    pending.logged.append(logged)
-                elif kind in self.recorded_kinds and not topic.endswith(f"/{STATISTICS_SUFFIX}"):
-                    pending.recorded.setdefault(kind, []).append(logged)
-        self._dropped_last = pending is not None
-
-    def _after_finish(self, logged: LoggedMessage) -> None:
-        kind = stage_of(logged.topic)
-        if kind not in self.recorded_kinds:
-            return
-        if logged.topic.endswith(f"/{STATISTICS_SUFFIX}"):
-            statistics: StageStatistics = logged.decoded
-            self._statistics[kind] = dict(statistics.values)
-        else:
-            self._finish.setdefault(kind, []).append(logged)
-
-    def _step(self, pending: _PendingFrame) -> FrameStep:
-        info: FrameInfo = pending.info.decoded
-        by_topic = {m.topic: m for m in pending.logged}
+    def _frame(self, recorded: RecordedFrame) -> Frame:
+        info: FrameInfo = recorded.info.decoded
+        by_topic = {m.topic: m for m in recorded.logged}
         camera = None
         if CALIBRATION_TOPIC in by_topic:
             k = CameraCalibration.FromString(by_topic[CALIBRATION_TOPIC].data)
             camera = Camera(fx=k.K[0], fy=k.K[4], cx=k.K[2], cy=k.K[5], width=k.width, height=k.height)
         image, depth = self._pixels(info, by_topic)
-        frame = Frame(
+        return Frame(
             index=info.frame, timestamp=info.timestamp, image=image, traversal=info.traversal,  # type: ignore[arg-type]
             sequence_index=info.sequence_index, name=info.name, depth=depth, camera=camera, pose=info.pose,
             scene=info.scene,
         )
-        return FrameStep(frame, recorded=pending.recorded, logged=[pending.info, *pending.logged])
 
     def _pixels(self, info: FrameInfo, by_topic: Mapping[str, LoggedMessage]) -> tuple[np.ndarray, np.ndarray | None]:
         shape = (info.height, info.width)
@@ -439,37 +455,69 @@ class ReplayFeed(FrameFeed):
             depth = foxglove.decode_depth(RawImage.FromString(by_topic[DEPTH_TOPIC].data), f"{where} ({DEPTH_TOPIC})")
         return image, depth
 
-    def log_frame(self, log: RunLogWriter, step: FrameStep) -> FrameInfo:
-        for logged in step.logged:
-            log.copy(logged)
-        return step.logged[0].decoded
 
-    def recorded_finish(self) -> dict[str, list[LoggedMessage]]:
-        return self._finish
+class RecordedStage(Stage):
+    """A stage read from the log instead of run: for each frame it gives back what the
+    original stage logged for it, at the end what it logged when the run finished, and
+    its logged statistics. It carries the original plugin's name, version, config and
+    class flags (``produces_global``, ``reads_pixels``, ...), so later stages' checks see
+    the stage they expect; its state is not there (the stage never ran).
+    """
 
-    def recorded_statistics(self, kind: str) -> dict[str, Any]:
-        return self._statistics.get(kind, {})
+    def __init__(self, plugin: type[Stage], config: PluginConfig, recording: LogRecording) -> None:
+        super().__init__(config)
+        for attribute, value in _class_flags(plugin).items():
+            setattr(self, attribute, value)
+        self.recording = recording
+        self.provenance = f"{plugin.name}=={plugin.version}, read from {recording.plan.log}"
 
-    def stage_for_inputs(self, kind: str, stage: Stage) -> Any:
-        return RecordedStage(stage, self.plan.from_kind) if kind in self.recorded_kinds else stage
+    def process(self, inputs: StageInputs) -> list[Message]:
+        current = self.recording.current
+        assert current is not None and current.info.decoded.frame == inputs.frame.index
+        return self._decoded(current.outputs.get(self.kind, ()))
 
-    def loop_ground_truth(self) -> LoopGroundTruth | None:
-        return self._source.loop_ground_truth()
+    def finish(self) -> list[Message]:
+        return self._decoded(self.recording.finish.get(self.kind, ()))
 
-    @property
-    def lost_frames(self) -> int:
-        """Frames left out because damage was met while gathering their messages."""
-        return self._lost_frames
+    def statistics(self) -> dict[str, float | int]:
+        return self.recording.statistics.get(self.kind, {})
 
-    def ending_note(self) -> str:
-        read = ", ".join(self.plan.recorded) or "none"
-        note = f"; replay of {self.plan.log} from {self.plan.from_kind} (read from the log: {read})"
-        if self._dropped_last:
-            note += "; the log ends without the run's finish, so its last frame was left out"
-        if self.plan.damage:
-            lost = f", {self._lost_frames} frames next to the damage were left out" if self._lost_frames else ""
-            note += f"; the log is damaged and was replayed as far as it could be read{lost} (lost: {self.plan.damage})"
-        return note + self._source.truth_note
+    @staticmethod
+    def _decoded(logged: Iterable[LoggedMessage]) -> list[Message]:
+        # the Foxglove messages that draw them are written again from the messages themselves
+        return [m.decoded for m in logged if m.message_encoding == "json"]
+
+    @classmethod
+    def substitute(cls, recording: LogRecording) -> Callable[[type[Plugin], PluginConfig], Plugin]:
+        """For :func:`~slamfront.recipe.build_pipeline`: a stage of the same plugin, read from the log."""
+
+        def make(plugin: type[Plugin], config: PluginConfig) -> Plugin:
+            assert issubclass(plugin, Stage)
+            _check_types(recording.plan, plugin.kind)
+            named = type(f"Recorded{plugin.__name__}", (cls,), {"__doc__": cls.__doc__})
+            return named(plugin, config, recording)
+
+        return make
+
+
+def _class_flags(plugin: type) -> dict[str, Any]:
+    """The plugin class's public constants (name, kind, version, flags like ``produces_local``)."""
+    flags = {}
+    for attribute in dir(plugin):
+        value = getattr(plugin, attribute)
+        if not attribute.startswith("_") and isinstance(value, (bool, int, float, str, tuple)):
+            flags[attribute] = value
+    return flags
+
+
+def _check_types(plan: ReplayPlan, kind: str) -> None:
+    """Refuse to read a stage from the log when one of its message types is not installed.
+
+    :raises LogError: naming the topic and the type.
+    """
+    for topic in plan.summary.topics:
+        if stage_of(topic.topic) == kind and topic.message_encoding == "json":
+            plan.types.require(topic.schema_name, f"{plan.log}: {topic.topic}")
 
 
 def replay_log(
@@ -484,6 +532,9 @@ def replay_log(
 ) -> RunResult:
     """Replay ``log`` into ``out_dir`` (``run.mcap``, ``metrics.json``, ``report.md``).
 
+    The run is an ordinary run whose source reads the log (:class:`RecordedSource`) and
+    whose stages before ``from_kind`` are :class:`RecordedStage` objects.
+
     :param recipe: replay with this recipe instead of the log's own.
     :param from_kind: the first stage to run again (see :func:`plan_replay`).
     :param trust_log: see :func:`plan_replay`.
@@ -495,9 +546,21 @@ def replay_log(
         raise LogError(f"{log}: a replay cannot overwrite the log it reads; choose another -o folder")
     origin = recipe_origin or f"{log}:{RECIPE_ATTACHMENT}"
     plan = plan_replay(log, recipe, origin, from_kind, trust_log=trust_log, salvage=salvage)
-    source = RecordedSource(plan)
-    pipeline = build_pipeline(plan.recipe, origin, registry=plan.registry, source=source)
-    feed = ReplayFeed(plan, source)
+    recording = LogRecording(plan)
+    source = RecordedSource(plan, recording)
+    substitutes: dict[str, Callable[[type[Plugin], PluginConfig], Plugin]] = {
+        "source": lambda _cls, _config: source,
+        **{kind: RecordedStage.substitute(recording) for kind in plan.recorded},
+    }
+    try:
+        pipeline = build_pipeline(plan.recipe, origin, registry=plan.registry, substitutes=substitutes)
+    except PluginError as exc:
+        if not plan.recorded:
+            raise
+        raise PluginError(
+            f"{exc} (in this replay the {', '.join(plan.recorded)} stage(s) before --from {plan.from_kind} are read "
+            "from the log: they give their logged messages, not their state; replay from an earlier stage)"
+        ) from exc
     metadata = {
         "replay": {
             "log": str(log),
@@ -507,8 +570,14 @@ def replay_log(
             **({"damage": plan.damage} if plan.damage else {}),
         }
     }
-    result = execute_run(pipeline, feed, origin, out_dir, progress, metadata=metadata, input_files=[log])
+    result = execute_run(pipeline, origin, out_dir, progress, metadata=metadata, input_files=[log])
+    if not plan.rerun:
+        result.notes.append(
+            f"no stage ran again: every stage was read from {log}"
+            + (f" (each reads the frames' pixels and {plan.pixels_problem})" if from_kind is None and plan.pixels_problem else "")
+            + "; the replay evaluated and reported the logged outputs again"
+        )
     if plan.damage:
-        lost = f" ({feed.lost_frames} frames next to the damage left out)" if feed.lost_frames else ""
+        lost = f" ({recording.lost_frames} frames next to the damage left out)" if recording.lost_frames else ""
         result.notes.append(f"{log} is damaged; replayed what could be read{lost}; lost: {plan.damage}")
     return result

@@ -1,11 +1,10 @@
 """Running a recipe: stream frames through the stages, log everything, evaluate, report.
 
-Frames are pulled from a feed (:mod:`slamfront.feeds`: a live source, or a log being
-replayed) one at a time and dropped after the last stage has seen them, so memory stays
-flat in the number of frames except for what a stage keeps on purpose (a map) and the
-small per-query results evaluation needs. In a replay, the stages before ``--from`` are
-not run: the messages they logged in the original run are copied to the new log and
-handed to the later stages exactly as the stages themselves would have.
+Frames are pulled from the source one at a time and dropped after the last stage has
+seen them, so memory stays flat in the number of frames except for what a stage keeps on
+purpose (a map) and the small per-query results evaluation needs. The run loop knows
+nothing of replays: a replay is a source that reads its frames from a log and stages
+that give back what the original run logged (:mod:`slamfront.replay`).
 
 The log is finalised whatever happens: normal end, a user error in the data, an
 exception in a plugin, Ctrl-C or SIGTERM (which are held back while a record is being
@@ -19,7 +18,7 @@ import errno
 import logging
 import platform
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -31,11 +30,9 @@ from tqdm import tqdm
 import slamfront
 from slamfront.errors import SlamfrontError, note_run_failure
 from slamfront.evaluation import EvaluationContext, EvaluationReport, evaluations_for
-from slamfront.feeds import FrameFeed, SourceFeed
 from slamfront.interrupts import Interrupts, RunInterrupted
 from slamfront.logcapture import RunLogCapture
 from slamfront.mcaplog import foxglove
-from slamfront.mcaplog.reader import LoggedMessage
 from slamfront.mcaplog.scene import SceneLogger
 from slamfront.mcaplog.topics import (
     CALIBRATION_TOPIC,
@@ -54,7 +51,7 @@ from slamfront.mcaplog.topics import (
 from slamfront.mcaplog.writer import LogSink, RunLogWriter
 from slamfront.messages import LoopTruth, Message, RunEvent, RunMetrics, StageStatistics
 from slamfront.outputs import claim_run_folder
-from slamfront.plugin import Stage, StageInputs
+from slamfront.plugin import Source, Stage, StageInputs
 from slamfront.recipe import Pipeline
 from slamfront.report.html import write_html
 from slamfront.report.markdown import write_report
@@ -177,24 +174,10 @@ def _write_stage_outputs(
         observers.observe(kind, message)
 
 
-def _copy_recorded(
-    log: RunLogWriter, kind: str, recorded: Iterable[LoggedMessage], observers: _Observers
-) -> list[Message]:
-    """Copy a recorded stage's messages unchanged; return its outputs (the JSON ones)."""
-    outputs = []
-    for logged in recorded:
-        log.copy(logged)
-        if logged.message_encoding == "json":
-            message = logged.decoded
-            outputs.append(message)
-            observers.observe(kind, message)
-    return outputs
-
-
-def _log_loop_truth(log: RunLogWriter, feed: FrameFeed, stamp: int) -> str:
+def _log_loop_truth(log: RunLogWriter, source: Source, stamp: int) -> str:
     """Log the source's loop ground truth so a replay can be evaluated from the log alone."""
     try:
-        truth = feed.loop_ground_truth()
+        truth = source.loop_ground_truth()
     except Exception as exc:  # noqa: BLE001 (best effort while the run is ending, maybe after a failure)
         return f"; loop ground truth not logged ({type(exc).__name__}: {exc})"
     if truth is not None:
@@ -221,13 +204,11 @@ def run_pipeline(
         (``--live``: :class:`slamfront.mcaplog.live.LiveView`).
     :raises SlamfrontError: bad data met mid-run (the log is finalised first).
     """
-    feed = SourceFeed(pipeline.source, pipeline.recipe.log)
-    return execute_run(pipeline, feed, origin, out_dir, progress, max_frames, sinks=sinks)
+    return execute_run(pipeline, origin, out_dir, progress, max_frames, sinks=sinks)
 
 
 def execute_run(
     pipeline: Pipeline,
-    feed: FrameFeed,
     origin: str,
     out_dir: Path,
     progress: bool | None = None,
@@ -236,8 +217,7 @@ def execute_run(
     input_files: Sequence[Path] = (),
     sinks: Sequence[LogSink] = (),
 ) -> RunResult:
-    """Drive ``pipeline``'s stages with the frames of ``feed``; stages of the kinds in
-    ``feed.recorded_kinds`` are not called, their logged messages are used instead.
+    """Drive ``pipeline``'s stages with the frames of its source, log and evaluate.
 
     The log's last ``/log`` line says how the run ended, whatever phase it ended in
     (streaming, the stages' finish, evaluation and its plots), and it is written last:
@@ -250,9 +230,9 @@ def execute_run(
     recipe = pipeline.recipe
     folder = claim_run_folder(out_dir, input_files)
     log_path = out_dir / "run.mcap"
+    source = pipeline.source
     stages: list[Stage] = pipeline.stages
-    recorded = feed.recorded_kinds
-    evaluations = evaluations_for(set(pipeline.plugins))
+    evaluations = [*evaluations_for(pipeline.plugins), *pipeline.registry.evaluations(pipeline.plugins)]
     scene = SceneLogger(recipe.log.scene_every) if recipe.log.scene else None
     observers = _Observers([*evaluations, *([scene] if scene else [])])
     timer, clock = StageTimer(), LogClock()
@@ -284,45 +264,39 @@ def execute_run(
                     log.sync()  # recipe and versions are on disk before the first frame: even a SIGKILL keeps them
                 bar: tqdm | None = None
                 try:
-                    _warn_if_no_query_is_reached(pipeline, feed, max_frames)
-                    total = feed.total()
+                    _warn_if_no_query_is_reached(pipeline, max_frames)
+                    total = _length(source)
+                    frame_logger = source.frame_logger(options)
                     bar = tqdm(
                         total=total if max_frames is None or total is None else min(total, max_frames),
                         desc=recipe.name,
                         unit="frame",
                         disable=None if progress is None else not progress,  # None: only on a terminal
                     )
-                    steps = iter(feed.steps())
+                    frames = iter(source.frames())
                     while max_frames is None or n_frames < max_frames:
-                        where = f"in the {pipeline.source.name} source reading frame {n_frames}"
+                        where = f"in the {source.name} source reading frame {n_frames}"
                         tick = time.perf_counter()
-                        step = next(steps, None)
-                        if step is None:
+                        frame = next(frames, None)
+                        if frame is None:
                             break
                         timer.add("source", time.perf_counter() - tick)
-                        frame = step.frame
                         last_stamp = frame.timestamp_ns
                         with clock:
                             capture.flush(log, last_stamp)
-                            info = feed.log_frame(log, step)
+                            info = frame_logger.write(log, frame)
                         observers.observe("frames", info)
                         inputs = StageInputs(frame=frame, outputs={}, stages={})
                         for stage in stages:
-                            if stage.kind in recorded:
-                                with clock:
-                                    produced = _copy_recorded(
-                                        log, stage.kind, step.recorded.get(stage.kind, ()), observers
-                                    )
-                            else:
-                                where = f"in the {stage.kind} plugin {stage.name!r} at frame {frame.index}"
-                                tick = time.perf_counter()
-                                produced = list(stage.process(inputs))
-                                timer.add(stage.kind, time.perf_counter() - tick)
-                                with clock:
-                                    capture.flush(log, last_stamp)
-                                    _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
+                            where = f"in the {stage.kind} plugin {stage.name!r} at frame {frame.index}"
+                            tick = time.perf_counter()
+                            produced = list(stage.process(inputs))
+                            timer.add(stage.kind, time.perf_counter() - tick)
+                            with clock:
+                                capture.flush(log, last_stamp)
+                                _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
                             inputs.outputs[stage.kind] = produced
-                            inputs.stages = {**inputs.stages, stage.kind: feed.stage_for_inputs(stage.kind, stage)}
+                            inputs.stages = {**inputs.stages, stage.kind: stage}
                         n_frames += 1
                         if scene is not None:
                             with clock:
@@ -330,12 +304,7 @@ def execute_run(
                         bar.update()
                     with clock:
                         log.write(EVENTS_TOPIC, RunEvent(event="finish", n_frames=n_frames), last_stamp)
-                    recorded_finish = feed.recorded_finish()
                     for stage in stages:
-                        if stage.kind in recorded:
-                            with clock:
-                                _copy_recorded(log, stage.kind, recorded_finish.get(stage.kind, ()), observers)
-                            continue
                         where = f"in the {stage.kind} plugin {stage.name!r} finishing the run"
                         tick = time.perf_counter()
                         produced = list(stage.finish())
@@ -344,19 +313,17 @@ def execute_run(
                             capture.flush(log, last_stamp)
                             _write_stage_outputs(log, stage.kind, produced, last_stamp, observers)
                     # the source's own counters (frames a recording dropped), first, as the stages' are
-                    statistics["source"] = dict(feed.source.statistics())
+                    statistics["source"] = dict(source.statistics())
                     for stage in stages:
                         where = f"in the {stage.kind} plugin {stage.name!r} giving its statistics"
-                        values = (
-                            feed.recorded_statistics(stage.kind) if stage.kind in recorded else dict(stage.statistics())
-                        )
+                        values = dict(stage.statistics())
                         statistics[stage.kind] = values
                         with clock:
                             log.write(statistics_topic(stage.kind), StageStatistics(values=values), last_stamp)
                     seconds = time.perf_counter() - started
                     phases["frame_loop"] = seconds
                     where = "in evaluation"
-                    metrics, sections = _evaluate(pipeline, feed, out_dir, evaluations, statistics, n_frames, seconds)
+                    metrics, sections = _evaluate(pipeline, out_dir, evaluations, statistics, n_frames, seconds)
                     phases["evaluation"] = time.perf_counter() - started - seconds
                     metrics["timing"] = timer.summary()
                     metrics["evaluation_seconds"] = phases["evaluation"]
@@ -382,7 +349,7 @@ def execute_run(
                             capture.flush(log, last_stamp)  # what the failing call logged, too
                             if scene is not None:
                                 scene.write(log, last_stamp)
-                            note = _log_loop_truth(log, feed, last_stamp) + feed.ending_note()
+                            note = _log_loop_truth(log, source, last_stamp) + source.ending_note()
                             line = foxglove.log_line(ending[1] + note, last_stamp, ending[0])
                             log.write_foxglove(LOG_TOPIC, line, last_stamp)
                 with clock:
@@ -417,13 +384,21 @@ def _logger_packages(pipeline: Pipeline) -> set[str]:
     return {"slamfront", *(type(plugin).__module__.partition(".")[0] for plugin in pipeline.plugins.values())}
 
 
-def _warn_if_no_query_is_reached(pipeline: Pipeline, feed: FrameFeed, max_frames: int | None) -> None:
+def _length(source: Source) -> int | None:
+    """How many frames the source will give, when it knows (for the progress bar)."""
+    try:
+        return len(source) or None
+    except (NotImplementedError, TypeError):
+        return None
+
+
+def _warn_if_no_query_is_reached(pipeline: Pipeline, max_frames: int | None) -> None:
     """Say so when ``max_frames`` ends the run before the first query that has a true match:
     a loop detector or localizer then scores 0 for want of queries, not for being wrong."""
     if max_frames is None or not {"loop_detector", "localizer"} & set(pipeline.plugins):
         return
     try:
-        truth = feed.loop_ground_truth()
+        truth = pipeline.source.loop_ground_truth()
     except Exception:  # noqa: BLE001 - only a hint; the run reports a real failure where it matters
         return
     if truth is None:
@@ -455,7 +430,7 @@ def _writing_outputs(out_dir: Path, context: str = "") -> Iterator[None]:
 
 
 def _evaluate(
-    pipeline: Pipeline, feed: FrameFeed, out_dir: Path, evaluations: Sequence[Any],
+    pipeline: Pipeline, out_dir: Path, evaluations: Sequence[Any],
     statistics: dict[str, dict[str, Any]], n_frames: int, seconds: float,
 ) -> tuple[dict[str, Any], list[EvaluationReport]]:
     """The run's metrics and report sections; evaluations write their plots meanwhile."""
@@ -469,7 +444,7 @@ def _evaluate(
         for key, value in values.items():
             metrics[key if key not in metrics else f"{kind}.{key}"] = value
     names = {kind: plugin.name for kind, plugin in pipeline.plugins.items()}
-    context = EvaluationContext(feed.source, out_dir, pipeline.recipe.eval, dict(metrics), names)
+    context = EvaluationContext(pipeline.source, out_dir, pipeline.recipe.eval, dict(metrics), names)
     with _writing_outputs(out_dir):
         sections = [r for r in (e.finish(context) for e in evaluations) if r is not None]
     for section in sections:

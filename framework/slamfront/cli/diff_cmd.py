@@ -29,6 +29,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--strict", action="store_true",
                         help="compare everything, timings and the /log topic included")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument(
+        "-p", "--plugin-module", action="append", default=[], metavar="MODULE",
+        help="also know the message types this plugin module declares, for their volatile fields (repeatable)",
+    )
     parser.set_defaults(handler=run)
 
 
@@ -41,7 +45,12 @@ def run(args: argparse.Namespace) -> int:
         summary = summarize(path)
         if not summary.complete:  # comparing what is readable could call two different logs identical
             raise LogError(f"{path}: the log is damaged ({summary.problem}); `slamfront recover` it, then diff the copy")
-    result = diff_logs(a, b, ignore=args.ignore, strict=args.strict)
+    types = None  # the installed message types, gathered only if a log has a plugin's message
+    if args.plugin_module:
+        from slamfront.registry import PluginRegistry
+
+        types = PluginRegistry(modules=args.plugin_module).message_types()
+    result = diff_logs(a, b, ignore=args.ignore, strict=args.strict, types=types)
     if args.json:
         print(json.dumps({
             "identical": result.identical,

@@ -22,8 +22,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("log", type=Path, help="a run's .mcap file (or its run folder)")
     parser.add_argument("--recipe", help="replay with this recipe (its stages before --from must match the log's)")
     parser.add_argument(
-        "--from", dest="from_kind", choices=STAGE_KINDS, metavar="STAGE",
-        help=f"first stage to run again, one of {', '.join(STAGE_KINDS)} (default: the earliest the log can feed)",
+        "--from", dest="from_kind", choices=(*STAGE_KINDS, "evaluation"), metavar="STAGE",
+        help=f"first stage to run again, one of {', '.join(STAGE_KINDS)}, or evaluation to read every stage from "
+        "the log and only evaluate again (default: the earliest stage the log can feed, else evaluation)",
     )
     parser.add_argument("-o", "--out", type=Path, help="output folder (default: logs/<recipe name>_replay/)")
     parser.add_argument(

@@ -1,36 +1,29 @@
-"""Built-in evaluations, chosen from the stages a recipe runs.
+"""The framework's evaluations, chosen from the stages a recipe runs.
 
 Each evaluation watches the run's messages and, at the end, produces metrics for
-``metrics.json``, a section of ``report.md`` and plots.
+``metrics.json``, a section of ``report.md`` and plots. These score the shared message
+contract (frames, descriptors, loop results); what a plugin's own messages mean is
+scored by the evaluations its package contributes (``slamfront_evaluations``).
 """
 
 from __future__ import annotations
 
-from slamfront.evaluation.backend import BackendEvaluation
+from collections.abc import Iterable
+
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
-from slamfront.evaluation.bow import BowEvaluation
 from slamfront.evaluation.frames import FrameOverview
-from slamfront.evaluation.localization import LocalizationEvaluation
 from slamfront.evaluation.loops import LoopClosureEvaluation
-from slamfront.evaluation.registration import RegistrationEvaluation
 from slamfront.evaluation.retrieval import DescriptorRetrieval
-from slamfront.plugin import Kind
 
 
-def evaluations_for(kinds: set[Kind]) -> list[Evaluation]:
-    """Fresh evaluations for a run whose recipe has the stages ``kinds``."""
+def evaluations_for(kinds: Iterable[str]) -> list[Evaluation]:
+    """Fresh framework evaluations for a run whose recipe has the plugin kinds ``kinds``."""
+    kinds = set(kinds)
     chosen: list[Evaluation] = [FrameOverview()]
     if "descriptor" in kinds:
         chosen.append(DescriptorRetrieval())
     if "loop_detector" in kinds:
         chosen.append(LoopClosureEvaluation())
-        chosen.append(BowEvaluation())  # reports only when a detector emits BowStatistics
-    if "registration" in kinds:
-        chosen.append(RegistrationEvaluation())
-    if "localizer" in kinds:
-        chosen.append(LocalizationEvaluation())
-    if "backend" in kinds:
-        chosen.append(BackendEvaluation())
     return chosen
 
 

@@ -1,5 +1,10 @@
 """What an evaluation is: it watches the run's messages, then turns them into metrics,
-a report section and plots."""
+a report section and plots.
+
+The framework scores the shared contract itself (frames, descriptors, loop results);
+plugin packages contribute evaluations of their own messages with the
+``slamfront_evaluations`` hook, as ``slamfront.Evaluation`` subclasses.
+"""
 
 from __future__ import annotations
 
@@ -42,7 +47,9 @@ class EvaluationReport:
 
 
 class Evaluation:
-    """Base of the built-in evaluations. Keep only what the end needs (no images)."""
+    """Base of every evaluation, the framework's and the plugins'. One object scores one
+    run: :meth:`observe` sees each message as it is logged (keep only what the end needs,
+    never images), :meth:`finish` turns that into an :class:`EvaluationReport`."""
 
     title: ClassVar[str] = ""
 

@@ -9,7 +9,7 @@ from collections import Counter
 import numpy as np
 
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
-from slamfront.messages import FrameInfo, LoopConstraint, LoopResult, Message
+from slamfront.messages import FrameInfo, LoopResult, LoopVerdict, Message
 from slamfront.report import plots
 
 
@@ -37,7 +37,7 @@ class FrameOverview(Evaluation):
                 self._stamped[message.frame] = (float(message.timestamp), np.asarray(message.pose, dtype=np.float64))
         elif isinstance(message, LoopResult) and message.accepted and message.match >= 0:
             self._accepted[message.frame] = message.match
-        elif isinstance(message, LoopConstraint):
+        elif isinstance(message, LoopVerdict):
             self._checked[(message.frame, message.match)] = message.added
 
     def finish(self, context: EvaluationContext) -> EvaluationReport:

@@ -24,7 +24,7 @@ import numpy as np
 
 from slamfront.core.loops import LoopGroundTruth, PrecisionRecall, precision_recall, recall_at_k
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
-from slamfront.messages import FrameInfo, LoopConstraint, LoopResult, Message
+from slamfront.messages import FrameInfo, LoopResult, LoopVerdict, Message
 from slamfront.outputs import write_atomically
 from slamfront.recipe import EvalOptions
 from slamfront.report import plots
@@ -132,7 +132,7 @@ class LoopClosureEvaluation(Evaluation):
             self._results[message.frame] = message
         elif isinstance(message, FrameInfo):
             self._sequence_index[message.frame] = (message.traversal, message.sequence_index)
-        elif isinstance(message, LoopConstraint):
+        elif isinstance(message, LoopVerdict):  # a back end's decision on a closure
             self._has_backend = True
             if message.added:
                 self._verified[message.frame] = message.match

@@ -9,7 +9,9 @@ What measures the machine rather than the method is left out by default, so two 
 one recipe compare equal: the ``/log`` topic (human-readable lines with durations) and,
 in ``RunMetrics`` and ``StageStatistics`` messages, the keys that are timings or memory
 (:data:`VOLATILE_KEY`), and in other messages the fields their class declares
-``volatile_fields`` (per-frame wall times). ``strict`` compares everything.
+``volatile_fields`` (per-frame wall times; known for the installed message types,
+:mod:`slamfront.message_types`, none for a type no installed package declares).
+``strict`` compares everything.
 """
 
 from __future__ import annotations
@@ -21,14 +23,17 @@ import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from google.protobuf.json_format import MessageToDict
 
-from slamfront.errors import LogError
 from slamfront.mcaplog.reader import LoggedMessage, read_messages
-from slamfront.messages import RunMetrics, StageStatistics, decode_any, message_class
+from slamfront.message_types import types_for
+from slamfront.messages import RunMetrics, StageStatistics, decode_any
+
+if TYPE_CHECKING:
+    from slamfront.message_types import MessageTypes
 
 DEFAULT_IGNORED_TOPICS = ("/log",)
 VOLATILE_KEY = re.compile(r"^(timing|frames_per_second)$|^log_|seconds|_ms(_|$)|_s$|per_second|rss|memory")
@@ -78,28 +83,28 @@ class _Entry:
     schema: str
 
 
-def _volatile_fields(schema_name: str) -> tuple[str, ...]:
-    try:
-        return message_class(schema_name).volatile_fields
-    except LogError:  # a Foxglove schema, or a message type whose plugin is not installed
-        return ()
+def _volatile_fields(schema_name: str, types: MessageTypes | None) -> tuple[str, ...]:
+    return types_for(schema_name, types).volatile_fields(schema_name)
 
 
-def _without_volatile(decoded: dict[str, Any], schema_name: str) -> dict[str, Any]:
+def _without_volatile(decoded: dict[str, Any], schema_name: str, types: MessageTypes | None) -> dict[str, Any]:
     """The decoded JSON message without what measures the machine."""
     if schema_name in _VOLATILE_SCHEMAS and isinstance(decoded.get("values"), dict):
         decoded["values"] = {k: v for k, v in decoded["values"].items() if not VOLATILE_KEY.search(k)}
-    for name in _volatile_fields(schema_name):
+    for name in _volatile_fields(schema_name, types):
         decoded.pop(name, None)
     return decoded
 
 
-def comparable_bytes(message: LoggedMessage, strict: bool = False) -> bytes:
+def comparable_bytes(message: LoggedMessage, strict: bool = False, types: MessageTypes | None = None) -> bytes:
     """The bytes ``diff`` compares: the message's own, or, unless ``strict``, its JSON
-    without the keys and fields that measure the machine."""
+    without the keys and fields that measure the machine.
+
+    :param types: the message types that know volatile fields (default: the installed ones).
+    """
     if strict or message.message_encoding != "json":
         return message.data
-    if message.schema_name not in _VOLATILE_SCHEMAS and not _volatile_fields(message.schema_name):
+    if message.schema_name not in _VOLATILE_SCHEMAS and not _volatile_fields(message.schema_name, types):
         return message.data
     try:
         decoded = json.loads(message.data)
@@ -107,15 +112,15 @@ def comparable_bytes(message: LoggedMessage, strict: bool = False) -> bytes:
         return message.data  # not JSON after all (damaged or crafted): compare its bytes
     if not isinstance(decoded, dict):
         return message.data
-    return json.dumps(_without_volatile(decoded, message.schema_name), sort_keys=True).encode()
+    return json.dumps(_without_volatile(decoded, message.schema_name, types), sort_keys=True).encode()
 
 
-def _index(path: Path, ignored: Sequence[str], strict: bool) -> dict[str, list[_Entry]]:
+def _index(path: Path, ignored: Sequence[str], strict: bool, types: MessageTypes | None) -> dict[str, list[_Entry]]:
     topics: dict[str, list[_Entry]] = {}
-    for message in read_messages(path, strict=False):
+    for message in read_messages(path, strict=False, types=types):
         if _is_ignored(message.topic, ignored):
             continue
-        digest = hashlib.blake2b(comparable_bytes(message, strict), digest_size=16).digest()
+        digest = hashlib.blake2b(comparable_bytes(message, strict, types), digest_size=16).digest()
         topics.setdefault(message.topic, []).append(_Entry(message.log_time_ns, digest, message.schema_name))
     return topics
 
@@ -124,14 +129,17 @@ def _is_ignored(topic: str, ignored: Sequence[str]) -> bool:
     return any(fnmatch.fnmatchcase(topic, pattern) for pattern in ignored)
 
 
-def diff_logs(a: Path, b: Path, ignore: Sequence[str] = (), strict: bool = False) -> LogDiff:
+def diff_logs(
+    a: Path, b: Path, ignore: Sequence[str] = (), strict: bool = False, types: MessageTypes | None = None
+) -> LogDiff:
     """The first differing message of every topic of two logs.
 
     :param ignore: topic patterns (shell globs) to leave out, besides the defaults.
     :param strict: compare everything, timings and ``/log`` included.
+    :param types: the message types that know volatile fields (default: the installed ones).
     """
     ignored = [*([] if strict else DEFAULT_IGNORED_TOPICS), *ignore]
-    index_a, index_b = _index(Path(a), ignored, strict), _index(Path(b), ignored, strict)
+    index_a, index_b = _index(Path(a), ignored, strict, types), _index(Path(b), ignored, strict, types)
     result = LogDiff(ignored=ignored)
     wanted: dict[str, int] = {}
     for topic in sorted(set(index_a) | set(index_b)):
@@ -164,10 +172,12 @@ def diff_logs(a: Path, b: Path, ignore: Sequence[str] = (), strict: bool = False
                     )
                 )
     if wanted:
-        messages_a = _fetch(Path(a), wanted)
-        messages_b = _fetch(Path(b), wanted)
+        messages_a = _fetch(Path(a), wanted, types)
+        messages_b = _fetch(Path(b), wanted, types)
         for topic, position in wanted.items():
-            first = _first_field(_comparable(messages_a[topic], strict), _comparable(messages_b[topic], strict))
+            first = _first_field(
+                _comparable(messages_a[topic], strict, types), _comparable(messages_b[topic], strict, types)
+            )
             path, value_a, value_b = first or ("(bytes)", "", "")
             result.differences.append(
                 TopicDifference(topic, position, path or "(whole message)", value_a, value_b,
@@ -177,10 +187,10 @@ def diff_logs(a: Path, b: Path, ignore: Sequence[str] = (), strict: bool = False
     return result
 
 
-def _fetch(path: Path, wanted: dict[str, int]) -> dict[str, LoggedMessage]:
+def _fetch(path: Path, wanted: dict[str, int], types: MessageTypes | None) -> dict[str, LoggedMessage]:
     counts: dict[str, int] = {}
     found: dict[str, LoggedMessage] = {}
-    for message in read_messages(path, list(wanted), strict=False):
+    for message in read_messages(path, list(wanted), strict=False, types=types):
         position = counts.get(message.topic, 0)
         counts[message.topic] = position + 1
         if position == wanted[message.topic]:
@@ -190,14 +200,14 @@ def _fetch(path: Path, wanted: dict[str, int]) -> dict[str, LoggedMessage]:
     return found
 
 
-def _comparable(message: LoggedMessage, strict: bool) -> Any:
+def _comparable(message: LoggedMessage, strict: bool, types: MessageTypes | None) -> Any:
     """A message as nested dicts, lists and arrays."""
     if message.message_encoding == "json":
         try:
             decoded = decode_any(message.data)
         except _UNDECODABLE:
             return {"(bytes)": message.data}
-        return decoded if strict else _without_volatile(decoded, message.schema_name)
+        return decoded if strict else _without_volatile(decoded, message.schema_name, types)
     try:
         return MessageToDict(message.decoded, preserving_proto_field_name=True)
     except Exception:  # noqa: BLE001 (undecodable: compare the raw bytes)

@@ -15,7 +15,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
@@ -27,8 +27,11 @@ from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
 from slamfront.errors import LogError
 from slamfront.mcaplog.scan import MAGIC, RecordScanner, ScanState, verify_finalised
-from slamfront.messages import decode_any, message_class
+from slamfront.message_types import decode_json
 from slamfront.text import shorten
+
+if TYPE_CHECKING:
+    from slamfront.message_types import MessageTypes
 
 # A damaged summary section fails in many layers (record parsing, struct, CRC checks);
 # every one of them means "scan the data section instead".
@@ -103,11 +106,14 @@ class LoggedMessage:
     schema_data: bytes = b""
     schema_encoding: str = ""
     publish_time_ns: int = 0
+    types: MessageTypes | None = field(default=None, compare=False, repr=False)
+    """The message types that decode JSON messages (None: slamfront's and the installed
+    plugins', :mod:`slamfront.message_types`)."""
 
     @cached_property
     def decoded(self) -> Any:
-        """A slamfront :class:`~slamfront.messages.Message` (or a dict when its type is not
-        imported), or a protobuf object for Foxglove messages.
+        """A slamfront :class:`~slamfront.messages.Message` (or a dict when no installed
+        package declares its type), or a protobuf object for Foxglove messages.
 
         :raises LogError: the bytes do not decode (a damaged or crafted message), naming
             the topic and the log time.
@@ -126,10 +132,7 @@ class LoggedMessage:
 
     def _decode(self) -> Any:
         if self.message_encoding == "json":
-            try:
-                return message_class(self.schema_name).from_json(self.data)
-            except LogError:
-                return decode_any(self.data)
+            return decode_json(self.schema_name, self.data, self.types)
         if self.message_encoding == "protobuf":
             schema = Schema(id=0, name=self.schema_name, encoding="protobuf", data=self.schema_data)
             decoder = ProtobufDecoderFactory().decoder_for("protobuf", schema)
@@ -312,21 +315,22 @@ def describe_damage(state: ScanState, last_ns: int | None = None) -> str:
 
 
 def read_messages(
-    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True
+    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True, types: MessageTypes | None = None
 ) -> Iterator[LoggedMessage]:
     """Messages in the order they were written (from the readable part of a damaged file).
 
     :param topics: only these topics (all when None).
     :param strict: raise :class:`LogError` after the last readable message of a damaged
         or unfinished file; when False, stop quietly there.
+    :param types: what decodes JSON messages (default: the installed message types).
     """
-    for message in read_messages_and_gaps(path, topics, strict):
+    for message in read_messages_and_gaps(path, topics, strict, types):
         if message is not None:
             yield message
 
 
 def read_messages_and_gaps(
-    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True
+    path: Path | str, topics: Iterable[str] | None = None, strict: bool = True, types: MessageTypes | None = None
 ) -> Iterator[LoggedMessage | None]:
     """:func:`read_messages`, with ``None`` where damage made the scan lose or step over
     part of the file: what was written around it may be incomplete."""
@@ -365,6 +369,7 @@ def read_messages_and_gaps(
                     schema_data=bytes(schema.data) if schema else b"",
                     schema_encoding=schema.encoding if schema else "",
                     publish_time_ns=record.publish_time,
+                    types=types,
                 )
             elif isinstance(record, DataEnd):
                 data_ended = True

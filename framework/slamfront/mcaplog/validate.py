@@ -1,12 +1,19 @@
 """Checking that a log is one Foxglove and other MCAP readers understand.
 
 Each topic must carry either a Foxglove schema (``protobuf``, a ``foxglove.*`` message
-of ``foxglove-schemas-protobuf``) or a registered slamfront schema (``jsonschema`` +
-``json``, a :class:`~slamfront.messages.Message` subclass that is imported). Every
-message is decoded: protobuf messages must parse, JSON messages must decode to their
-class and encode back to the same bytes (bit-exact round trip). Foxglove messages'
-``timestamp`` must equal their log time and their ``frame_id`` must not be empty, so
-panels line them up in time and the 3-D panel can place them.
+of ``foxglove-schemas-protobuf``) or a JSON one (``jsonschema`` + ``json``). Every
+message is decoded: protobuf messages must parse; JSON messages of an installed type
+(:mod:`slamfront.message_types`: slamfront's own and those installed plugins declare)
+must decode to their class and encode back to the same bytes (bit-exact round trip).
+A JSON message whose type no installed package declares is checked against the JSON
+Schema the log embeds for it and reported as *not installed*, which is not a fault of
+the log. Foxglove messages' ``timestamp`` must equal their log time and their
+``frame_id`` must not be empty, so panels line them up in time and the 3-D panel can
+place them.
+
+An embedded schema is data from the log: it is evaluated with the structural keywords
+only (types, properties, items, enums, combinations, bounds, local ``$ref``); nothing is
+fetched and no regular expression from the log is run.
 
 Two more checks catch a log that was changed after it was written, even when every
 CRC was recomputed: a channel slamfront would not have written (a message encoding it
@@ -19,6 +26,7 @@ message, in order). ``replay`` refuses such a log with the same one-line message
 from __future__ import annotations
 
 import importlib
+import json
 import pkgutil
 import re
 from dataclasses import dataclass, field
@@ -53,8 +61,19 @@ from slamfront.mcaplog.topics import (
     TF_TOPIC,
     stage_of,
 )
-from slamfront.messages import message_class
+from slamfront.message_types import MessageTypes, installed_message_types
 from slamfront.text import shorten
+
+MAX_SCHEMA_BYTES = 1 << 20
+"""Largest embedded JSON Schema evaluated (slamfront's own are a few KiB)."""
+_STRUCTURAL_KEYWORDS = (
+    "$ref", "additionalProperties", "allOf", "anyOf", "const", "contains", "dependentRequired", "enum",
+    "exclusiveMaximum", "exclusiveMinimum", "items", "maxItems", "maxLength", "maxProperties", "maximum",
+    "minItems", "minLength", "minProperties", "minimum", "not", "oneOf", "prefixItems", "properties",
+    "propertyNames", "required", "type",
+)
+"""What an embedded schema is checked with: no ``pattern`` (a crafted regular expression
+could run for hours), no ``format``, no ``uniqueItems`` (quadratic)."""
 
 
 @cache
@@ -197,14 +216,20 @@ class Validation:
     n_messages: int = 0
     n_topics: int = 0
     problems: list[str] = field(default_factory=list)
+    not_installed: dict[str, str] = field(default_factory=dict)
+    """Topic -> schema name of the JSON topics whose type no installed package declares
+    (checked against the log's embedded schema instead)."""
 
     @property
     def valid(self) -> bool:
         return not self.problems
 
 
-def validate_log(path: Path, max_problems: int = 20) -> Validation:
-    """Check every topic's schema and decode every message of ``path``."""
+def validate_log(path: Path, max_problems: int = 20, types: MessageTypes | None = None) -> Validation:
+    """Check every topic's schema and decode every message of ``path``.
+
+    :param types: the message types to decode with (default: the installed ones).
+    """
     path = Path(path)
     result = Validation(path)
     summary = summarize(path)
@@ -212,6 +237,9 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
         result.problems.append(f"the log is not finalised: {summary.problem}")
     foxglove = foxglove_message_types()
     decoders: dict[str, Any] = {}
+    json_topics = [t for t in summary.topics if (t.schema_encoding, t.message_encoding) == ("jsonschema", "json")]
+    if types is None and json_topics:
+        types = installed_message_types()
     for topic in summary.topics:
         result.n_topics += 1
         kind = (topic.schema_encoding, topic.message_encoding)
@@ -221,22 +249,29 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
         elif kind == ("protobuf", "protobuf") and topic.schema_name in foxglove:
             decoders[topic.topic] = foxglove[topic.schema_name]
         elif kind == ("jsonschema", "json"):
-            try:
-                decoders[topic.topic] = message_class(topic.schema_name)
-            except LogError as exc:
-                result.problems.append(f"{topic.topic}: {exc}")
+            assert types is not None
+            cls = types.get(topic.schema_name)
+            if cls is not None:
+                decoders[topic.topic] = cls
+            else:
+                result.not_installed[topic.topic] = topic.schema_name
         else:
             result.problems.append(
                 f"{topic.topic}: schema {topic.schema_name!r} ({topic.schema_encoding}/{topic.message_encoding}) "
-                "is neither a Foxglove schema nor a registered slamfront one"
+                "is neither a Foxglove schema nor a JSON one"
             )
     order = OrderCheck(numbered_log(path))
+    embedded: dict[bytes, EmbeddedSchema] = {}
     try:
-        for message in read_messages(path):
+        for message in read_messages(path, types=types):
             result.n_messages += 1
-            decoder = decoders.get(message.topic)
             if len(result.problems) >= max_problems:
                 continue
+            decoder = decoders.get(message.topic)
+            if decoder is None and message.topic in result.not_installed:
+                decoder = embedded.get(message.schema_data)
+                if decoder is None:
+                    decoder = embedded[message.schema_data] = EmbeddedSchema(message.schema_name, message.schema_data)
             problem = order.problem(message)
             if problem:
                 result.problems.append(problem)
@@ -250,7 +285,69 @@ def validate_log(path: Path, max_problems: int = 20) -> Validation:
     return result
 
 
+class EmbeddedSchema:
+    """The JSON Schema a log embeds for a message type that is not installed, checked
+    with :data:`_STRUCTURAL_KEYWORDS` only and never fetching a ``$ref``."""
+
+    def __init__(self, schema_name: str, data: bytes) -> None:
+        self.schema_name = schema_name
+        self.problem: str | None = None
+        self._validator: Any = None
+        if len(data) > MAX_SCHEMA_BYTES:
+            self.problem = f"its embedded schema is {len(data)} bytes (more than {MAX_SCHEMA_BYTES} are not read)"
+            return
+        try:
+            schema = json.loads(data)
+        except (ValueError, RecursionError) as exc:
+            self.problem = f"its embedded schema is not JSON: {shorten(str(exc), 120)}"
+            return
+        if not isinstance(schema, (dict, bool)):
+            self.problem = "its embedded schema is not a JSON Schema (neither an object nor a boolean)"
+            return
+        self._validator = _structural_validator()(schema, registry=_no_retrieval())
+
+    def check(self, data: bytes) -> str | None:
+        """Why ``data`` does not match the schema, or None when it does."""
+        if self.problem:
+            return self.problem
+        from jsonschema.exceptions import SchemaError
+        from referencing.exceptions import Unresolvable
+
+        try:
+            instance = json.loads(data)
+            error = next(iter(self._validator.iter_errors(instance)), None)
+        except (ValueError, RecursionError) as exc:
+            return f"is not JSON: {shorten(str(exc), 120)}"
+        except (SchemaError, Unresolvable, TypeError, KeyError, AttributeError) as exc:
+            return f"its embedded schema cannot be evaluated: {type(exc).__name__}: {shorten(str(exc), 120)}"
+        if error is None:
+            return None
+        where = "/".join(str(p) for p in error.absolute_path) or "(the message)"
+        return f"does not match the schema the log embeds for {self.schema_name}: at {where}: {shorten(error.message, 160)}"
+
+
+@cache
+def _structural_validator() -> Any:
+    from jsonschema import Draft202012Validator, validators
+
+    return validators.create(
+        meta_schema=Draft202012Validator.META_SCHEMA,
+        validators={k: v for k, v in Draft202012Validator.VALIDATORS.items() if k in _STRUCTURAL_KEYWORDS},
+        type_checker=Draft202012Validator.TYPE_CHECKER,
+        id_of=Draft202012Validator.ID_OF,
+    )
+
+
+def _no_retrieval() -> Any:
+    """A reference registry that knows no other document (a remote ``$ref`` is unresolvable)."""
+    from referencing import Registry
+
+    return Registry()
+
+
 def _check(message: Any, decoder: Any) -> str | None:
+    if isinstance(decoder, EmbeddedSchema):
+        return decoder.check(message.data)
     if message.message_encoding == "json":
         try:
             decoded = decoder.from_json(message.data)

@@ -69,25 +69,31 @@ def read_graph(path: Path, graph_format: GraphFormat = "auto") -> LoadedGraph:
 
 
 def graph_from_log(path: Path) -> LoadedGraph:
-    """The last :class:`~slamfront.messages.PoseGraphState` in a run log, with the
-    ground-truth poses of its frames when the source logged them.
+    """The last pose graph a back end logged in a run log (a message whose type is a
+    :class:`~slamfront.messages.PoseGraphRecord`, among the installed message types), with
+    the ground-truth poses of its frames when the source logged them.
 
     :raises LogError: not a readable log; DataError: no back-end graph in it.
     """
     from slamfront.mcaplog.reader import read_messages, summarize  # logs only: graph files do without
-    from slamfront.messages import FrameInfo, PoseGraphState
+    from slamfront.message_types import installed_message_types
+    from slamfront.messages import FrameInfo, PoseGraphRecord
 
     summary = summarize(path)
-    topics = [t.topic for t in summary.topics if t.schema_name == PoseGraphState.schema_name]
+    types = installed_message_types()
+    topics = [
+        t.topic for t in summary.topics
+        if t.message_encoding == "json" and issubclass(types.get(t.schema_name) or object, PoseGraphRecord)
+    ]
     if not topics:
-        raise DataError(f"{path}: the log has no pose graph (a {PoseGraphState.schema_name} message); "
+        raise DataError(f"{path}: the log has no pose graph (a back end's graph message); "
                         "run a recipe with a backend stage, or give a g2o file")
-    state: PoseGraphState | None = None
+    state: PoseGraphRecord | None = None
     truth: dict[int, np.ndarray] = {}
     stamps: dict[int, float] = {}
-    for logged in read_messages(path, topics=[*topics, "/frames"], strict=summary.complete):
+    for logged in read_messages(path, topics=[*topics, "/frames"], strict=summary.complete, types=types):
         message = logged.decoded
-        if isinstance(message, PoseGraphState):
+        if isinstance(message, PoseGraphRecord):
             state = message
         elif isinstance(message, FrameInfo):
             stamps[message.frame] = float(message.timestamp)

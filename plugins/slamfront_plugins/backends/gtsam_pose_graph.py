@@ -16,7 +16,7 @@ from slamfront.core.posegraph import PoseGraph, make_graph
 from slamfront.data import DataPath
 from slamfront.local_features import LocalFeatureExtractor
 from slamfront.matching import Matcher, resolve_max_distance
-from slamfront.messages import Features, LoopConstraint, LoopResult, Message, PoseGraphState, RelativePose, Trajectory
+from slamfront.messages import Features, LoopResult, Message, RelativePose, Trajectory
 from slamfront.posegraph.io import OdometryTable, read_odometry
 from slamfront.posegraph.solver import (
     Isam2Session,
@@ -26,6 +26,7 @@ from slamfront.posegraph.solver import (
     optimize,
     prior_factor,
 )
+from slamfront_plugins.backends.messages import LoopConstraint, PoseGraphState
 from slamfront_plugins.backends.pnp_verification import FrameFeatures, PnPConfig, lift, verify
 
 

@@ -19,8 +19,9 @@ from slamfront.core.pnp import backproject
 from slamfront.core.thumbnail import thumbnail
 from slamfront.formats.npz import read_message_npz
 from slamfront.matching import Matcher, MatchingConfig, resolve_max_distance
-from slamfront.messages import Features, KeyframeAdded, KeyframeMap, Message, PoseEstimate
+from slamfront.messages import Features, Message
 from slamfront_plugins.localizers.keyframe_map import Ranked, TopologicalMap, View
+from slamfront_plugins.localizers.messages import KeyframeAdded, KeyframeMap, PoseEstimate
 
 logger = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ points of its keypoints; links join keyframes visited one after the other (the m
 topology). A frame is compared with the nodes by two-image matching
 (:mod:`slamfront.matching`); with pre-selection only with the ``candidates`` nodes whose
 global vectors are closest, so the cost stays flat as the map grows. The whole map
-converts to and from a :class:`~slamfront.messages.KeyframeMap` message, which is how a
+converts to and from a :class:`~slamfront_plugins.localizers.messages.KeyframeMap` message, which is how a
 run logs it and saves it (``keyframe_map.npz``) for a later run.
 """
 
@@ -19,7 +19,7 @@ from slamfront.core.buffers import GrowingRows
 from slamfront.core.geometry import invert
 from slamfront.core.pnp import pnp_ransac
 from slamfront.matching import NO_MATCH, Matcher, TwoViewMatch
-from slamfront.messages import KeyframeMap
+from slamfront_plugins.localizers.messages import KeyframeMap
 
 
 @dataclass(frozen=True)

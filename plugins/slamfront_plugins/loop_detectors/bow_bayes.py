@@ -25,7 +25,8 @@ from slamfront.core.vocabulary import (
     VocabularyThresholds,
 )
 from slamfront.local_features import DESCRIPTORS, DescriptorName
-from slamfront.messages import BowStatistics, Features, LoopResult, Message
+from slamfront.messages import Features, LoopResult, Message
+from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
 
 

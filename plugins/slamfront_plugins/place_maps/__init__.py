@@ -1,4 +1,4 @@
-"""Built-in place maps."""
+"""Built-in place maps and their own messages."""
 
 from slamfront import hookimpl
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
@@ -7,3 +7,10 @@ from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
 @hookimpl
 def slamfront_place_maps() -> list[type]:
     return [HierarchicalPlaceMap]
+
+
+@hookimpl
+def slamfront_message_types() -> list[type]:
+    from slamfront_plugins.place_maps.hierarchical import PlaceThreshold
+
+    return [PlaceThreshold]

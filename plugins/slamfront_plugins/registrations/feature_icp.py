@@ -10,9 +10,10 @@ import numpy as np
 from slamfront import Frame, Registration, StageInputs
 from slamfront.core.clouds import transform_points
 from slamfront.core.geometry import invert
-from slamfront.messages import CloudRegistration, LoopResult, Message, PointCloud, RegisteredTrajectory, RelativePose
+from slamfront.messages import LoopResult, Message, PointCloud, RelativePose
 from slamfront_plugins.registrations.clouds import PreparedCloud, StepTimer, UnusableFrame, prepare_cloud
 from slamfront_plugins.registrations.config import FeatureIcpConfig
+from slamfront_plugins.registrations.messages import CloudRegistration, RegisteredTrajectory
 from slamfront_plugins.registrations.model import ModelBuilder
 from slamfront_plugins.registrations.pairwise import align
 from slamfront_plugins.registrations.pose_graph import Link, refine

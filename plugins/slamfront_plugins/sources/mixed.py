@@ -20,7 +20,7 @@ from pydantic import Field, PrivateAttr, ValidationError, ValidationInfo, model_
 
 from slamfront import Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
-from slamfront.registry import PluginRegistry
+from slamfront.registry import PluginRegistry, registry_in_context
 
 _SCENE_GAP_S = 60.0
 """Seconds between the last frame of one scene and the first of the next (timestamps must increase)."""
@@ -42,8 +42,11 @@ class OtherScene(SourceSpec):
     limit: int | None = Field(None, ge=1, description="at most this many frames")
 
 
-def _build(spec: SourceSpec, registry: PluginRegistry, context: dict[str, Any] | None, where: str) -> Source:
-    """The source ``spec`` names, with its params validated as a recipe's would be."""
+def _resolve(
+    spec: SourceSpec, registry: PluginRegistry, context: dict[str, Any], where: str
+) -> tuple[type[Source], PluginConfig]:
+    """The source class ``spec`` names (in the run's registry) and its params, validated as
+    a recipe's would be; nothing is constructed."""
     try:
         cls = registry.get("source", spec.plugin).cls
     except Exception as exc:  # PluginError: unknown name, with the known ones
@@ -55,7 +58,7 @@ def _build(spec: SourceSpec, registry: PluginRegistry, context: dict[str, Any] |
             f"{where}.params.{'.'.join(str(p) for p in error['loc'])}: {error['msg']}" for error in exc.errors()
         )
         raise ValueError(problems) from None
-    return cls(config)
+    return cls, config  # type: ignore[return-value]
 
 
 class MixedScenes(Source):
@@ -74,26 +77,31 @@ class MixedScenes(Source):
     class Config(PluginConfig):
         main: SourceSpec = Field(description="the run's own source (its frames build and query the map)")
         others: list[OtherScene] = Field(min_length=1, description="scenes whose frames are out of the map")
-        _sources: list[Source] = PrivateAttr(default_factory=list)
+        _resolved: list[tuple[type[Source], PluginConfig]] = PrivateAttr(default_factory=list)
 
         @model_validator(mode="after")
-        def _build_sources(self, info: ValidationInfo) -> MixedScenes.Config:
-            # built here, where the recipe's data root is known, so a bad inner param is a recipe error
-            registry = PluginRegistry()
-            self._sources = [_build(self.main, registry, info.context, "main")] + [
-                _build(other, registry, info.context, f"others.{k}") for k, other in enumerate(self.others)
+        def _resolve_sources(self, info: ValidationInfo) -> MixedScenes.Config:
+            # validated here, with the run's registry and data root, so a bad inner param is a recipe error
+            registry = registry_in_context(info.context)
+            context = dict(info.context or {})
+            self._resolved = [_resolve(self.main, registry, context, "main")] + [
+                _resolve(other, registry, context, f"others.{k}") for k, other in enumerate(self.others)
             ]
             return self
 
     config: Config
 
+    def __init__(self, config: Config) -> None:
+        super().__init__(config)
+        self._sources = [cls(inner) for cls, inner in config._resolved]
+
     @cached_property
     def main(self) -> Source:
-        return self.config._sources[0]
+        return self._sources[0]
 
     def _selected(self, k: int) -> range:
         """Positions, in the k-th other source's frames, of the frames used."""
-        spec, other = self.config.others[k], self.config._sources[k + 1]
+        spec, other = self.config.others[k], self._sources[k + 1]
         chosen = range(spec.start, len(other), spec.step)
         return chosen[: spec.limit] if spec.limit is not None else chosen
 
@@ -109,7 +117,7 @@ class MixedScenes(Source):
         for frame in self.main.frames():
             yield frame
             index, last = frame.index + 1, frame.timestamp
-        for k, other in enumerate(self.config._sources[1:]):
+        for k, other in enumerate(self._sources[1:]):
             chosen = self._selected(k)
             frames = itertools.islice(other.frames(), chosen.start, chosen.stop, chosen.step)
             first = None

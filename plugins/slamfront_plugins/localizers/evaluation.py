@@ -36,8 +36,9 @@ from slamfront.core.loops import PrecisionRecall, precision_recall
 from slamfront.core.trajectory import absolute_trajectory_error, delta_pairs, evaluate_poses, relative_pose_error
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
 from slamfront.formats.npz import write_message_npz
-from slamfront.messages import FrameInfo, KeyframeAdded, KeyframeMap, Message, PoseEstimate
+from slamfront.messages import FrameInfo, Message
 from slamfront.report import plots
+from slamfront_plugins.localizers.messages import KeyframeAdded, KeyframeMap, PoseEstimate
 
 MAP_FILE = "keyframe_map.npz"
 """Where a run saves the keyframe map it built (``localizer.params.map`` reads it)."""

@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
-from slamfront.messages import BowStatistics, Message
+from slamfront.messages import Message
 from slamfront.report import plots
+from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 
 _FIELDS = (
     "frame", "n_features", "vocabulary_size", "active_words", "quantisation_error", "other_vocabulary_size",

@@ -11,8 +11,9 @@ import numpy as np
 
 from slamfront.core.trajectory import end_drift, evaluate_poses
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport, PoseFile
-from slamfront.messages import FrameInfo, LoopConstraint, Message, PoseGraphState, Trajectory
+from slamfront.messages import FrameInfo, Message, Trajectory
 from slamfront.posegraph import report
+from slamfront_plugins.backends.messages import LoopConstraint, PoseGraphState
 
 _SOLVER_KEYS = (
     "backend_mode", "backend_kernel", "n_vertices", "n_edges", "n_graph_loop_closures", "cost_before", "cost_after",

@@ -9,8 +9,9 @@ import numpy as np
 from slamfront.core.trajectory import delta_pairs, end_drift, relative_pose_error
 from slamfront.evaluation.base import Evaluation, EvaluationContext, EvaluationReport
 from slamfront.formats.ply import write_ply
-from slamfront.messages import CloudRegistration, FrameInfo, Message, PointCloud, RegisteredTrajectory
+from slamfront.messages import FrameInfo, Message, PointCloud
 from slamfront.report import plots
+from slamfront_plugins.registrations.messages import CloudRegistration, RegisteredTrajectory
 
 PREPROCESS_STEPS = ("cloud", "outliers", "downsample", "normals")
 """Per-frame steps reported together as preprocessing (RGB-D to a filtered, downsampled cloud)."""
