@@ -10,7 +10,6 @@ Writes results/logging.md (results/logging_<recipe>.md for another recipe).
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import tempfile
 import time
@@ -105,7 +104,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         size_mb = log.stat().st_size / 1e6
     body = "\n\n".join([
         f"Recipe `{args.recipe}`{' ' + ' '.join(args.overrides) if args.overrides else ''}, {n_frames} frames. "
-        f"Machine: {platform.machine()}, Python {platform.python_version()}. Write time is measured inside "
+        "Write time is measured inside "
         "the run: encoding images, serialising every message, chunk compression, fsync and closing the file.",
         "## Log options: write overhead and size",
         table(

@@ -195,3 +195,22 @@ def test_connected_labels_number_components_as_scipy() -> None:
             b = a + 1
         _, expected = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
         assert connected_labels(n, a, b).tolist() == expected.tolist()
+
+
+def test_the_fast_reader_and_the_line_by_line_reader_agree() -> None:
+    from slamfront.core import graph_files
+
+    text = [
+        "# a comment line", "VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0.1  # trailing comment", "VERTEX_SE2 2 2 0 0.2",
+        "EDGE_SE2 0 1 1 0 0.1 10 0 0 10 0 20", "LANDMARK 1 7 2 3 1 0 1", "EDGE_SE2 1 2 1 0 0.1 10 0 0 10 0 20",
+        "", "EDGE_SE2 0 2 2.0000000000000004 1e-3 .2 10 1 0 10 0 20", "FIX 0",
+    ]
+    fast = graph_files._parse_regular(text, "g.g2o", "auto")
+    checked = graph_files._parse_checked(text, "g.g2o", "auto")
+    assert fast.format == checked.format and fast.skipped == checked.skipped == {"LANDMARK": 1}
+    for name in ("ids", "poses", "sources", "targets", "measurements", "information", "fixed", "lines"):
+        np.testing.assert_array_equal(getattr(fast.graph, name), getattr(checked.graph, name))
+    for irregular in (text + ["EDGE_SE2 0 1 1 0"], text + ["EDGE_SE2 0 1 1 0 x 1 0 0 1 0 1"], text + ["EDGE_FOO 1"],
+                      text + ["EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1"], text + ["FIX a"]):
+        with pytest.raises(graph_files._Irregular):
+            graph_files._parse_regular(irregular, "g.g2o", "auto")
