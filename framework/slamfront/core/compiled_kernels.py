@@ -222,10 +222,21 @@ def popcount64(typingctx, x):  # type: ignore[no-untyped-def]
 
 
 @jit
+def _keep_two(d, j, b1, b2, r1):  # type: ignore[no-untyped-def]
+    # the two smallest distances so far and the row of the smallest, with row j's d;
+    # strict comparisons in row order, so ties go to the lower row
+    if d < b2:
+        if d < b1:
+            return d, b1, j
+        return b1, d, r1
+    return b1, b2, r1
+
+
+@jit
 def two_nearest_hamming(queries, rows, d1, d2, i1):  # type: ignore[no-untyped-def]
     # per query (packed bits as uint64 words), the smallest and second-smallest Hamming
-    # distance to the rows and the row of the smallest; strict comparisons in row
-    # order, so ties go to the lower row (as cv2.batchDistance with K = 2)
+    # distance to the rows and the row of the smallest (ties to the lower row, as
+    # cv2.batchDistance with K = 2)
     n_words = queries.shape[1]
     for i in range(queries.shape[0]):
         query = queries[i]
@@ -237,26 +248,14 @@ def two_nearest_hamming(queries, rows, d1, d2, i1):  # type: ignore[no-untyped-d
             for j in range(rows.shape[0]):
                 d = (np.int64(popcount64(q0 ^ rows[j, 0])) + np.int64(popcount64(q1 ^ rows[j, 1]))
                      + np.int64(popcount64(q2 ^ rows[j, 2])) + np.int64(popcount64(q3 ^ rows[j, 3])))
-                if d < b2:
-                    if d < b1:
-                        b2 = b1
-                        b1 = d
-                        r1 = j
-                    else:
-                        b2 = d
+                b1, b2, r1 = _keep_two(d, j, b1, b2, r1)
         else:
             for j in range(rows.shape[0]):
                 row = rows[j]
                 d = np.int64(0)
                 for k in range(n_words):
                     d += np.int64(popcount64(query[k] ^ row[k]))
-                if d < b2:
-                    if d < b1:
-                        b2 = b1
-                        b1 = d
-                        r1 = j
-                    else:
-                        b2 = d
+                b1, b2, r1 = _keep_two(d, j, b1, b2, r1)
         d1[i] = b1
         d2[i] = b2
         i1[i] = r1

@@ -35,8 +35,9 @@ Words can be *deactivated* (their places moved to long-term memory, RTAB-Map sty
 the places that use it, so a word leaves the search exactly when its last place does.
 
 Search is exact brute force over the active words (``core.distances.nearest_two``:
-BLAS for L2, SIMD popcount for Hamming); memory management keeps the active set
-bounded, which is what keeps it real-time.
+tiled BLAS products for L2, a compiled popcount scan for Hamming); memory management
+keeps the active set bounded, which is what keeps it real-time. The update loop itself
+is compiled (``core.compiled_kernels.quantise``); :func:`decide` is its rule, in Python.
 """
 
 from __future__ import annotations
