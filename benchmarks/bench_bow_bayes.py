@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 from pathlib import Path
 
@@ -105,7 +104,6 @@ def seeds() -> None:
         greedy, nndr = scores[(mode, scoring, unsearched, "greedy")], scores[(mode, scoring, unsearched, "nndr")]
         summary.append([label, *_paired(greedy, nndr, "recall_at_100p"), *_paired(greedy, nndr, "auc_pr")])
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}. "
         f"Synthetic street (the synthetic_bow recipe): world seeds {', '.join(map(str, SEEDS))}, 2 laps of 300 frames "
         "in one stream (day, then dusk), 320x240, SIFT (300 features); T_sim 0.2, T_loop 0.11, T_NNDR 0.8 and the "
         "derived T_ND1 / T_ND2 on squared distances, STM 10, time budget 0.7 s (never reached: "
@@ -189,8 +187,7 @@ def memory() -> None:
 
 def _setting(stream: Stream) -> str:
     return (
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy "
-        f"{np.__version__}. Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
+        f"Synthetic street, world seed {LONG.seed}, {len(stream.descriptors)} frames (10 laps of "
         "1,000, day/dusk alternating, 160x120), ORB (150 features), greedy vocabulary with the derived thresholds, "
         "T_sim 0.2, STM 10, RTAB-Map forgetting (until as many words left the search as arrived, and whenever the "
         "time model predicts the next frame over the budget until it does not), recent places protected (0.2 of "
@@ -243,7 +240,7 @@ def flat() -> None:
         verdicts.append(_time_line(label, run, FLAT_BUDGET_S, "modelled_seconds", "the modelled time"))
     c = BowBayes.Config()
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. The stream of "
+        "The stream of "
         f"``memory`` (world seed {LONG.seed}, {len(stream.descriptors)} frames, ORB), the detector's default linear "
         f"time model ({c.model_base_s:g} s + {c.model_comparison_s:g} s per feature-word comparison + "
         f"{c.model_place_s:g} s per WM place) against a {FLAT_BUDGET_S * 1000:.0f} ms budget: the transfers, and so "

@@ -34,7 +34,6 @@ Run: .venv/bin/python benchmarks/bench_bow_thresholds.py derive   (about 2 minut
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 from pathlib import Path
 
@@ -157,7 +156,6 @@ def derive() -> None:
                "T_ND2 = equal-error distance", "equal-error rate", "T_ND1 = 0.0125 T_ND2",
                "matches below T_ND1", "non-matches above T_ND2"]
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}. "
         f"{len(images)} calibration images (RGB-D samples: Redwood, room, ICL-NUIM, NYU, SUN), "
         f"{WARPS} random homographies each, at most {MAX_FEATURES} features per image; BRIEF and FREAK on FAST.",
         "Match: distance to the feature at the true warped position (within "
@@ -222,7 +220,7 @@ def sweep() -> None:
                "NNDR R@100%P", "greedy - NNDR R@100%P", "greedy - NNDR AUC", "share decided by the ratio test",
                "share ND > T_ND2"]
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}. Synthetic street, world seeds "
+        "Synthetic street, world seeds "
         f"{', '.join(map(str, TUNING_SEEDS))} (none of them in a reported result), 2 laps of 300 frames in one "
         "stream, 320x240, SIFT (300 features); T_sim 0.2, T_loop 0.11, STM 10, no time budget; RTAB-Map's "
         "merged-frame search and place scoring (the defaults). Thresholds on squared L2 distances; the derived "

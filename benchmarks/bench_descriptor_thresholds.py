@@ -25,11 +25,9 @@ Run: .venv/bin/python benchmarks/bench_descriptor_thresholds.py
 from __future__ import annotations
 
 import math
-import platform
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -99,7 +97,6 @@ def main() -> None:
         ])
         print(rows[-1], flush=True)
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}. "
         f"Sequences: {', '.join(f'`{s}`' for s in SEQUENCES)}; {MAX_FEATURES} features per frame; correct matches "
         f"= ratio test 0.8 + fundamental-matrix RANSAC between frames at most {NEIGHBOURS} apart; threshold = "
         f"{PERCENTILE:g}th percentile of their distances. *Unrelated NN*: distance from each feature to its nearest "

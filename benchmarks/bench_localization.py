@@ -26,14 +26,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -209,8 +207,7 @@ def main() -> None:
     kidnapped_table, shipped = kidnapped(descriptors)
     load = os.getloadavg()[0]
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}; load "
-        f"{load:.1f} at the start; latencies are per localized frame on a machine shared with other jobs. "
+        f"Load {load:.1f} at the start; latencies are per localized frame on a machine shared with other jobs. "
         f"Command: `benchmarks/bench_localization.py {' '.join(sys.argv[1:])}`.",
         "## Kidnapped robot: synthetic street, second drive in random order, then another world "
         "(`recipes/synthetic_localize.yaml`)",

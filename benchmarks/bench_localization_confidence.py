@@ -39,11 +39,9 @@ Run: .venv/bin/python benchmarks/bench_localization_confidence.py
 from __future__ import annotations
 
 import math
-import platform
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -190,7 +188,6 @@ def main() -> None:
             p, r = precision_recall_at(values[mask], labels[mask], cut)
             operating.append([name, which, int(mask.sum()), int(labels[mask].sum()), f"{p:.3f}", f"{r:.3f}"])
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}. "
         f"Calibration worlds {', '.join(map(str, SEEDS))} (unknown places: each seed + 1); "
         f"{len(labels)} answers, {int(labels.sum())} right. See the script's docstring for the protocol.",
         "## How well each piece of evidence separates right from wrong answers",

@@ -13,7 +13,6 @@ Run: .venv/bin/python benchmarks/bench_localization_scaling.py [--max-keyframes 
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import time
 from pathlib import Path
@@ -91,7 +90,6 @@ def main() -> None:
         ])
         print(rows[-1], flush=True)
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}, "
         f"{cv2.getNumThreads()} OpenCV threads; shared with other jobs, so compare the columns of one row.",
         f"Map: {n_max} keyframes, one per metre of a synthetic street (320x240, ORB 500), built in "
         f"{build_s:.0f} s (rendering included); peak memory {peak_rss_mb():.0f} MB. Queries: a second drive "

@@ -135,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         size_mb = log.stat().st_size / 1e6
     body = "\n\n".join([
         f"Recipe `{args.recipe}`{' ' + ' '.join(args.overrides) if args.overrides else ''}, {n_frames} frames, "
-        f"each setting run {args.repeat} time(s), interleaved (medians). Machine: {machine()}. Write time is "
+        f"each setting run {args.repeat} time(s), interleaved (medians). Write time is "
         "measured inside the run: encoding images, serialising every message, chunk compression, fsync and "
         "closing the file.",
         "## Log options: write overhead and size",

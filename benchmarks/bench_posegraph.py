@@ -15,7 +15,6 @@ Run: .venv/bin/python benchmarks/bench_posegraph.py [name ...]
 
 from __future__ import annotations
 
-import platform
 import sys
 import time
 from pathlib import Path
@@ -124,7 +123,6 @@ def main() -> None:
         "iSAM2 s", "iSAM2 solver", "iSAM2 / batch time", "iSAM2 / batch cost", "max position diff m", "ATE m: initial / batch / iSAM2",
     ]
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, GTSAM {gtsam.__version__ if hasattr(gtsam, '__version__') else '4.3'}.",
         __doc__.split("Run:")[0].strip(),
         table(headers, rows),
     ])

@@ -8,16 +8,19 @@ on the same machine under the same load:
    plugins), frame loop (frames, stages, their `finish`, logging), evaluation (metrics
    and their plots), log close, report (metrics.json, report.md), and the rest
    (interpreter start and exit); evaluation as a share of the frame loop;
-2. `slamfront optimize` (with and without its plot) against a plain GTSAM script that
-   does the same read + Levenberg-Marquardt + writing of the optimised graph and a TUM
-   trajectory, on M3500 and sphere2500;
+2. `slamfront optimize` (default options, which write before_after.png, and
+   `--no-plots`) against a plain GTSAM script that does the same read +
+   Levenberg-Marquardt + writing of the optimised graph and a TUM trajectory, on M3500
+   and sphere2500, with the relative difference of their final costs;
 3. `slamfront eval traj` against `evo_ape` (evo, same SE(3) alignment, same answer) on
    the TUM fr1 pair;
 4. `slamfront --help` against a bare interpreter start.
 
-Commands are repeated (``--repeats``, interleaved with their peer) and the median kept.
+Commands are repeated (``--repeats`` rounds after an untimed warm-up, interleaved with
+their peer); ratios are the medians of the round-by-round ratios.
 
-Run: .venv/bin/python benchmarks/bench_process.py [--recipes nordland_seqslam ...] [--repeats 3]
+Run: .venv/bin/python benchmarks/bench_process.py [--recipes nordland_seqslam ...] [--repeats 5]
+     [--peers optimize other]   (``--recipes`` with no names skips the recipes)
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -82,6 +86,7 @@ else:
     quat = np.column_stack([np.zeros_like(half), np.zeros_like(half), np.sin(half), np.cos(half)])
 table = np.column_stack([np.array(keys, dtype=float), xyz, quat])
 np.savetxt(out + "/trajectory.tum", table, fmt="%.17g")
+print(repr(graph.error(result)))
 """
 
 GRAPHS = {
@@ -91,14 +96,34 @@ GRAPHS = {
 TRAJECTORY = ("trajectories/fr1_gt_vs_est/groundtruth.txt", "trajectories/fr1_gt_vs_est/estimated.txt")
 
 
+CHILD_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+"""Children run as on a user's machine: with Python's bytecode cache (a development shell may
+switch it off, and then every slamfront module is compiled again at each start)."""
+
+
+def timed(command: list[str]) -> tuple[float, float, str]:
+    """Wall seconds of a child process from spawn to exit, its CPU seconds (user + system),
+    and its stdout."""
+    start = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=CHILD_ENV)
+    stdout, stderr = child.communicate()
+    seconds = time.perf_counter() - start
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)  # cumulative: the caller takes differences
+    if child.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed: {stderr.strip()[-500:]}")
+    return seconds, usage.ru_utime + usage.ru_stime, stdout
+
+
 def wall(command: list[str]) -> tuple[float, str]:
     """Seconds of a child process from spawn to exit, and its stdout."""
-    start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, check=False)
-    seconds = time.perf_counter() - start
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} failed: {done.stderr.strip()[-500:]}")
-    return seconds, done.stdout
+    seconds, _, stdout = timed(command)
+    return seconds, stdout
+
+
+def pair_ratios(ours: list[float], theirs: list[float]) -> str:
+    """The median of the pair-by-pair ratios, with their range."""
+    ratios = [a / b for a, b in zip(ours, theirs)]
+    return f"{median(ratios):.3f} [{min(ratios):.2f}-{max(ratios):.2f}]"
 
 
 def median(values: list[float]) -> float:
@@ -131,24 +156,45 @@ def recipes_table(names: list[str]) -> str:
     )
 
 
-def peer_rows(repeats: int, plots: bool) -> list[list[object]]:
+def optimize_rows(repeats: int) -> list[list[object]]:
+    """``slamfront optimize`` (default options, and ``--no-plots``) against the plain GTSAM
+    script, interleaved A B C A B C ..., ratios pair by pair (wall and CPU)."""
     rows = []
     for name, (relative, dim) in GRAPHS.items():
-        graph = DATA / relative
-        ours, theirs, ours_plot = [], [], []
-        for _ in range(repeats):  # interleaved: both see the same load
-            with tempfile.TemporaryDirectory() as out:
-                ours.append(wall([str(BIN / "slamfront"), "optimize", str(graph), "-o", out, "--no-plots"])[0])
-            with tempfile.TemporaryDirectory() as out:
-                theirs.append(wall([sys.executable, "-c", GTSAM_SCRIPT, str(graph), out, dim])[0])
-            if plots:
+        graph = str(DATA / relative)
+        commands = {  # OUT: the output folder
+            "default": [str(BIN / "slamfront"), "optimize", graph, "-o", "OUT"],
+            "no plots": [str(BIN / "slamfront"), "optimize", graph, "-o", "OUT", "--no-plots"],
+            "gtsam": [sys.executable, "-c", GTSAM_SCRIPT, graph, "OUT", dim],
+        }
+        walls: dict[str, list[float]] = {k: [] for k in commands}
+        cpus: dict[str, list[float]] = {k: [] for k in commands}
+        costs: dict[str, float] = {}
+        for attempt in range(repeats + 1):  # the first round warms the caches and is not counted
+            for label, command in commands.items():
                 with tempfile.TemporaryDirectory() as out:
-                    ours_plot.append(wall([str(BIN / "slamfront"), "optimize", str(graph), "-o", out])[0])
-        row: list[object] = [f"optimize {name}", median(ours), median(theirs), median(ours) / median(theirs), 1.3]
-        rows.append(row)
-        if plots:
-            rows.append([f"optimize {name} (with before_after.png)", median(ours_plot), median(theirs),
-                         median(ours_plot) / median(theirs), "-"])
+                    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    seconds, after, stdout = timed([out if part == "OUT" else part for part in command])
+                    cpu = after - (before.ru_utime + before.ru_stime)
+                    if label == "gtsam":
+                        costs[label] = float(stdout.strip().splitlines()[-1])
+                    else:
+                        costs[label] = json.loads((Path(out) / "metrics.json").read_text())["cost_after"]
+                if attempt:
+                    walls[label].append(seconds)
+                    cpus[label].append(cpu)
+            print(name, attempt, {k: round(v[-1], 3) for k, v in walls.items() if v}, flush=True)
+        difference = abs(costs["default"] - costs["gtsam"]) / costs["gtsam"]
+        for label, target in (("default", 1.3), ("no plots", "-")):
+            shown = f"`slamfront optimize {name}.g2o`" + (" --no-plots" if label == "no plots" else " (default options)")
+            rows.append([shown, median(walls[label]), median(walls["gtsam"]),
+                         pair_ratios(walls[label], walls["gtsam"]), pair_ratios(cpus[label], cpus["gtsam"]),
+                         f"{difference:.1e}", target])
+    return rows
+
+
+def peer_rows(repeats: int) -> list[list[object]]:
+    rows = []
     gt, est = (str(DATA / p) for p in TRAJECTORY)
     ours, theirs = [], []
     answers = {}
@@ -160,42 +206,56 @@ def peer_rows(repeats: int, plots: bool) -> list[list[object]]:
         theirs.append(seconds)
         answers["evo"] = next(float(line.split()[-1]) for line in stdout.splitlines() if line.strip().startswith("rmse"))
     rows.append([f"eval traj fr1 (ATE {answers['slamfront']:.6f} m; evo_ape {answers['evo']:.6f} m)",
-                 median(ours), median(theirs), median(ours) / median(theirs), 1.1])
+                 median(ours), median(theirs), pair_ratios(ours, theirs), "-", "-", 1.1])
     helps, bare = [], []
     for _ in range(repeats):
         helps.append(wall([str(BIN / "slamfront"), "--help"])[0])
         bare.append(wall([sys.executable, "-c", "pass"])[0])
-    rows.append(["slamfront --help (peer: python -c pass)", median(helps), median(bare), median(helps) / median(bare), "-"])
+    rows.append(["slamfront --help (peer: python -c pass)", median(helps), median(bare), pair_ratios(helps, bare),
+                 "-", "-", "-"])
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--recipes", nargs="*", default=sorted(p.stem for p in (ROOT / "recipes").glob("nordland_*.yaml")))
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--no-plots", action="store_true", help="skip the optimize runs with their plot")
+    parser.add_argument("--repeats", type=int, default=5, help="timed rounds per command (after one warm-up round)")
+    parser.add_argument("--peers", nargs="*", choices=("optimize", "other"), default=["optimize", "other"],
+                        help="which peer comparisons to run")
     args = parser.parse_args()
     load_before = os.getloadavg()
-    peers = peer_rows(args.repeats, not args.no_plots)
+    optimize = optimize_rows(args.repeats) if "optimize" in args.peers else []
+    peers = peer_rows(args.repeats) if "other" in args.peers else []
     recipes = recipes_table(args.recipes) if args.recipes else ""
     load_after = os.getloadavg()
-    body = "\n\n".join([
-        f"One run, every command a fresh process timed from outside (median of {args.repeats}, interleaved with "
-        f"its peer); machine load (1-min average) {load_before[0]:.1f} before, {load_after[0]:.1f} after, on "
-        f"{os.cpu_count()} cores. Ratios are the numbers to compare; seconds depend on the load.",
-        "## Against peers",
-        table(["command", "slamfront s", "peer s", "ratio", "target"], peers),
-        "Peers: a plain GTSAM script (`gtsam.readG2o`, gauge prior, Levenberg-Marquardt with 100 iterations, "
-        "`gtsam.writeG2o` and a TUM file) for `optimize` (which also writes initial.tum, metrics.json and "
-        "report.md, and checks the graph); `evo_ape tum GT EST -a --t_max_diff 0.01` for `eval traj "
-        "--max-difference 0.01` (which also computes RPE); the same ATE is printed beside.",
-        "## Nordland recipes: where a `slamfront run` spends its time",
+    headers = ["command", "slamfront s", "peer s", "wall ratio [range]", "CPU ratio [range]", "cost difference",
+               "target"]
+    body = "\n\n".join(part for part in [
+        f"Every command a fresh process timed from outside, with Python's bytecode cache, after one untimed "
+        f"warm-up round; {args.repeats} rounds, each command interleaved with its peer (A B A B ...); the ratios "
+        f"are the medians of the round-by-round ratios, [min-max] beside; seconds are medians. Wall ratios are "
+        f"the target; CPU ratios (user + system seconds of the child) move less with the load. Machine load "
+        f"(1-min average) {load_before[0]:.1f} before, {load_after[0]:.1f} after, on {os.cpu_count()} cores, "
+        f"shared with other jobs: seconds depend on the load, ratios much less.",
+        "## `slamfront optimize` against a plain GTSAM script" if optimize else "",
+        table(headers, optimize) if optimize else "",
+        "Peer: `gtsam.readG2o`, a gauge prior, Levenberg-Marquardt (GTSAM's defaults, 100 iterations at most), "
+        "`gtsam.writeG2o` and a TUM file. `slamfront optimize` also checks the graph (line-numbered errors, "
+        "connectivity, positive-definite information), writes initial.tum, metrics.json and report.md, and by "
+        "default before_after.png (drawn with Pillow). *Cost difference*: relative difference of the two final "
+        "costs." if optimize else "",
+        "## Against other peers" if peers else "",
+        table(headers, peers) if peers else "",
+        "`evo_ape tum GT EST -a --t_max_diff 0.01` for `eval traj --max-difference 0.01` (which also computes "
+        "RPE); the same ATE is printed beside." if peers else "",
+        "## Nordland recipes: where a `slamfront run` spends its time" if recipes else "",
         recipes,
         "`frame loop` includes the stages' `finish` (SeqSLAM matches all queries there in batch mode) and the "
         "log writing shown in its own column; `evaluation` is every evaluation's metrics and plots after the loop; "
-        "`start/exit` is the process's own start and exit (interpreter, atexit) outside the timed phases.",
-    ])
-    publish("process", "Whole-process profile", body)
+        "`start/exit` is the process's own start and exit (interpreter, atexit) outside the timed phases."
+        if recipes else "",
+    ] if part)
+    publish("process", "Whole-process profile", body, libraries=("numpy", "gtsam", "pillow", "evo"))
 
 
 if __name__ == "__main__":

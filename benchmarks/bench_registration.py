@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import resource
 import sys
 import tempfile
@@ -173,12 +172,9 @@ def main() -> None:
     second = voxel_table(3 if args.quick else 12)
     third = count_table(6 if args.quick else 46)
     end_load = os.getloadavg()
-    machine = (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
-        f"load average {load[0]:.1f} at the start, {end_load[0]:.1f} at the end (shared machine: compare the ratios)"
-    )
     body = (
-        f"Machine: {machine}. Recipe `recipes/{RECIPE}.yaml` rendered at 640x480 (307,200 points per cloud, "
+        f"Load average {load[0]:.1f} at the start, {end_load[0]:.1f} at the end (shared machine: compare the "
+        f"ratios). Recipe `recipes/{RECIPE}.yaml` rendered at 640x480 (307,200 points per cloud, "
         "as the paper's Kinect), 20 cm voxel grid, ICP 100 iterations, 0.3 m, epsilon 1e-9, point-to-plane.\n\n"
         f"## 46 clouds, the paper's configurations (paper's seconds in brackets)\n\n{first}\n\n"
         f"## Time against voxel size (FPFH + RANSAC + ICP, first 12 clouds)\n\n{second}\n\n"

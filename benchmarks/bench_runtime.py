@@ -5,12 +5,9 @@ Run: .venv/bin/python benchmarks/bench_runtime.py
 
 from __future__ import annotations
 
-import platform
 import sys
 import tempfile
 from pathlib import Path
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -64,7 +61,6 @@ def main() -> None:
     render = render_rates()
     runs, extra = pipeline_runs()
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}.",
         "## Synthetic world rendering (one core for shading, Open3D ray casting on all)",
         table(["image", "frames/s", "ms/frame", "time vs 160x120"], render),
         "## paired_demo recipe (400 + 400 frames), whole run incl. rendering",

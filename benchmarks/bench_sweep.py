@@ -13,7 +13,6 @@ Run: .venv/bin/python benchmarks/bench_sweep.py
 from __future__ import annotations
 
 import os
-import platform
 import resource
 import sys
 import tempfile
@@ -90,7 +89,6 @@ def main() -> None:
                          cpu if sees_cpu else "n/a", (cpu - base_cpu) / RUNS if sees_cpu else "n/a"])
         load_after = os.getloadavg()[0]
     body = "\n\n".join([
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}. "
         f"Load average (1 min) {load_before:.1f} before and {load_after:.1f} after: with other jobs on the "
         f"machine, wall times and parallel speed-ups understate what {os.cpu_count()} free cores give.",
         f"Sweep: {RUNS} runs of the paired_demo recipe at 100 + 100 frames (160x120, images not logged): "

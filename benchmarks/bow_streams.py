@@ -10,6 +10,7 @@ benchmarks report is the detector's own: rendering and feature extraction are ex
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +22,7 @@ from slamfront.evaluation.loops import score_loops
 from slamfront.frame import Frame
 from slamfront.local_features import DESCRIPTORS, LocalFeatureExtractor
 from slamfront.messages import Features, LoopResult
-from slamfront.plugin import StageInputs
+from slamfront.plugin import Source, StageInputs
 from slamfront.recipe import EvalOptions
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
 from slamfront_plugins.loop_detectors.bow_evaluation import feature_share
@@ -43,11 +44,14 @@ class StreamSpec:
     height: int = 240
     descriptor: str = "sift"
     max_features: int = 300
+    scale: float = 1.0
+    """Images resized by this factor before detection (local_features' ``scale``)."""
 
     @property
     def key(self) -> str:
+        upscaled = f"_x{self.scale:g}" if self.scale != 1.0 else ""
         return (f"s{self.seed}_l{self.laps}_f{self.frames_per_lap}_r{self.route_m:g}_{self.width}x{self.height}_"
-                f"{self.descriptor}{self.max_features}")
+                f"{self.descriptor}{self.max_features}{upscaled}")
 
 
 @dataclass(frozen=True)
@@ -58,11 +62,27 @@ class Stream:
     truth: LoopGroundTruth
     seconds_to_make: float
     """Rendering and feature extraction, the first time (0 when read from the cache)."""
+    extraction_seconds: np.ndarray | None = None
+    """(N,) feature extraction alone, per frame (thread CPU seconds), when it was measured."""
 
 
 def synthetic_stream(spec: StreamSpec) -> Stream:
     """The stream's descriptors and ground truth, from the cache or rendered now."""
-    path = CACHE / f"bow_{spec.key}.npz"
+    source = SyntheticWorld(SyntheticWorld.Config(
+        seed=spec.seed, mode="stream", laps=spec.laps, frames_per_traversal=spec.frames_per_lap,
+        route_length_m=spec.route_m, image_width=spec.width, image_height=spec.height,
+    ))
+    return _cached_stream(f"bow_{spec.key}", spec, source, f"render + {spec.descriptor} (world seed {spec.seed})")
+
+
+def source_stream(name: str, spec: StreamSpec, source: Source) -> Stream:
+    """Any source's frames as a feature stream (cached under ``name``); ``spec`` gives the
+    features (descriptor, count, scale), its other fields only label the stream."""
+    return _cached_stream(f"bow_{name}_{spec.descriptor}{spec.max_features}_x{spec.scale:g}", spec, source, name)
+
+
+def _cached_stream(key: str, spec: StreamSpec, source: Source, label: str) -> Stream:
+    path = CACHE / f"{key}.npz"
     metric = DESCRIPTORS[spec.descriptor].metric  # type: ignore[index]
     if path.exists():
         data = np.load(path)
@@ -70,22 +90,24 @@ def synthetic_stream(spec: StreamSpec) -> Stream:
         stacked = data["descriptors"]
         descriptors = [stacked[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
         truth = LoopGroundTruth(data["queries"], data["indptr"], data["matches"])
-        return Stream(spec, descriptors, metric, truth, 0.0)
-    source = SyntheticWorld(SyntheticWorld.Config(
-        seed=spec.seed, mode="stream", laps=spec.laps, frames_per_traversal=spec.frames_per_lap,
-        route_length_m=spec.route_m, image_width=spec.width, image_height=spec.height,
-    ))
-    extractor = LocalFeatureExtractor(spec.descriptor, max_features=spec.max_features)  # type: ignore[arg-type]
+        extraction = data["extraction_seconds"] if "extraction_seconds" in data else None
+        return Stream(spec, descriptors, metric, truth, 0.0, extraction)
+    extractor = LocalFeatureExtractor(spec.descriptor, max_features=spec.max_features,  # type: ignore[arg-type]
+                                      scale=spec.scale)
     started = time.perf_counter()
-    descriptors = [extractor.extract(f.gray()).descriptors for f in tqdm(
-        source.frames(), total=len(source), desc=f"render + {spec.descriptor} (world seed {spec.seed})", unit="frame")]
+    descriptors, extraction = [], []
+    for frame in tqdm(source.frames(), total=len(source), desc=label, unit="frame"):
+        grey = frame.gray()
+        tick = time.thread_time()
+        descriptors.append(extractor.extract(grey).descriptors)
+        extraction.append(time.thread_time() - tick)
     seconds = time.perf_counter() - started
     truth = source.loop_ground_truth()
     CACHE.mkdir(exist_ok=True)
     offsets = np.concatenate([[0], np.cumsum([len(d) for d in descriptors])]).astype(np.int64)
     np.savez(path, descriptors=np.concatenate(descriptors), offsets=offsets, queries=truth.queries,
-             indptr=truth.indptr, matches=truth.matches)
-    return Stream(spec, descriptors, metric, truth, seconds)
+             indptr=truth.indptr, matches=truth.matches, extraction_seconds=np.array(extraction))
+    return Stream(spec, descriptors, metric, truth, seconds, np.array(extraction))
 
 
 @dataclass(frozen=True)
@@ -94,26 +116,45 @@ class Run:
     statistics: list[BowStatistics]
     seconds: float
     """The detector's wall time over the whole stream."""
+    frame_wall: np.ndarray | None = None
+    """(N,) wall seconds of each frame's ``process`` call."""
+    frame_cpu: np.ndarray | None = None
+    """(N,) CPU seconds of the calling thread in each frame's ``process`` call (what the
+    detector itself costs, whatever else the machine runs)."""
 
 
-def run_detector(config: BowBayes.Config, stream: Stream, label: str = "", progress: bool = True) -> Run:
-    """Feed the stream's features to a fresh ``bow_bayes`` detector, as the runtime would."""
+def run_detector(
+    config: BowBayes.Config, stream: Stream, label: str = "", progress: bool = True,
+    clock: Callable[[], float] | None = None,
+) -> Run:
+    """Feed the stream's features to a fresh ``bow_bayes`` detector, as the runtime would.
+
+    :param clock: the detector's clock for its time budget (default: the wall clock);
+        ``time.thread_time`` charges a frame only the CPU time the detector itself used.
+    """
     detector = BowBayes(config)
+    if clock is not None:
+        detector.clock = clock
     blank = np.zeros((1, 1), np.uint8)
     results: dict[int, LoopResult] = {}
     statistics: list[BowStatistics] = []
+    frame_wall, frame_cpu = [], []
     started = time.perf_counter()
     frames = enumerate(stream.descriptors)
     for index, descriptors in tqdm(frames, total=len(stream.descriptors), desc=label or "bow_bayes", unit="frame",
                                    disable=not progress, leave=False):
         frame = Frame(index=index, timestamp=float(index), image=blank)
         message = Features(frame=index, descriptors=descriptors, metric=stream.metric)  # type: ignore[arg-type]
-        for out in detector.process(StageInputs(frame=frame, outputs={"descriptor": [message]})):
+        wall, cpu = time.perf_counter(), time.thread_time()
+        outputs = detector.process(StageInputs(frame=frame, outputs={"descriptor": [message]}))
+        frame_cpu.append(time.thread_time() - cpu)
+        frame_wall.append(time.perf_counter() - wall)
+        for out in outputs:
             if isinstance(out, BowStatistics):
                 statistics.append(out)
             else:
                 results[out.frame] = out  # type: ignore[union-attr]
-    return Run(results, statistics, time.perf_counter() - started)
+    return Run(results, statistics, time.perf_counter() - started, np.array(frame_wall), np.array(frame_cpu))
 
 
 def score(run: Run, truth: LoopGroundTruth, loop_scoring: str = "place", unsearched: str = "score") -> dict:

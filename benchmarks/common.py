@@ -1,10 +1,20 @@
-"""Helpers shared by the benchmark scripts: timing, peak memory, writing result tables."""
+"""Helpers shared by the benchmark scripts: timing, peak memory, writing result tables.
+
+Every results file :func:`publish` writes ends with the machine it was measured on (CPU
+model, cores, SIMD extensions, Python and library versions): a timing means nothing
+without it, and these machines differ (some have AVX-512, some do not).
+"""
 
 from __future__ import annotations
 
+import os
+import platform
+import re
 import resource
+import subprocess
 import time
 from collections.abc import Callable, Sequence
+from importlib import metadata
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -34,9 +44,56 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
     return "\n".join(lines)
 
 
-def publish(name: str, title: str, body: str) -> None:
-    """Print a result and write it to results/<name>.md."""
+LIBRARIES = ("numpy", "opencv-contrib-python-headless", "gtsam", "numba", "open3d")
+"""Libraries whose versions every results file records (those installed)."""
+
+
+def cpu_model() -> str:
+    """The CPU's model name, with its family and model numbers on Linux (a virtual machine may
+    call every generation "AMD EPYC"); macOS: sysctl; else what ``platform`` knows."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        info = ""
+    found = {key: re.search(rf"^{key}\s*:\s*(.+)$", info, re.MULTILINE) for key in ("model name", "cpu family", "model")}
+    if found["model name"]:
+        numbers = f" (family {found['cpu family'].group(1)}, model {found['model'].group(1)})" if found["model"] else ""
+        return found["model name"].group(1).strip() + numbers
+    try:
+        return subprocess.run(["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True,
+                              check=True, timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return platform.processor() or platform.machine()
+
+
+def simd_extensions() -> str:
+    """The vector instruction sets the CPU reports that compiled kernels use (Linux only)."""
+    try:
+        flags = set(re.search(r"^flags\s*:(.*)$", Path("/proc/cpuinfo").read_text(), re.MULTILINE).group(1).split())
+    except (OSError, AttributeError):
+        return ""
+    wanted = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni")
+    return " ".join(f for f in wanted if f in flags)
+
+
+def machine(libraries: Sequence[str] = LIBRARIES) -> str:
+    """One line naming the machine: CPU model, cores, SIMD, OS, Python, library versions."""
+    versions = []
+    for name in libraries:
+        try:
+            versions.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            continue
+    simd = simd_extensions()
+    return (
+        f"Machine: {cpu_model()}, {os.cpu_count()} logical cores{f' ({simd})' if simd else ''}, "
+        f"{platform.system()} {platform.machine()}, Python {platform.python_version()}; " + ", ".join(versions) + "."
+    )
+
+
+def publish(name: str, title: str, body: str, libraries: Sequence[str] = LIBRARIES) -> None:
+    """Print a result and write it to results/<name>.md, ending with :func:`machine`."""
     RESULTS.mkdir(exist_ok=True)
-    text = f"# {title}\n\n{body.rstrip()}\n"
+    text = f"# {title}\n\n{body.rstrip()}\n\n{machine(libraries)}\n"
     (RESULTS / f"{name}.md").write_text(text)
     print(text)

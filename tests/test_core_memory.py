@@ -223,3 +223,21 @@ def test_parameters_are_checked() -> None:
     with pytest.raises(CoreError):
         LinearTimeModel(comparison_s=-1.0)
     assert LinearTimeModel(0.5, 1e-3, 1e-2).seconds(10, 100, 5) == pytest.approx(0.5 + 1.0 + 0.05)
+
+
+def test_the_inverted_index_gives_eq5_for_every_place() -> None:
+    from collections import Counter
+
+    from slamfront.core.bag_of_words import InvertedIndex, similarity
+
+    rng = np.random.default_rng(2)
+    bags = {place: Counter(rng.integers(0, 40, rng.integers(0, 30)).tolist()) for place in range(0, 60, 3)}
+    index = InvertedIndex()
+    for place, bag in bags.items():
+        index.add(place, bag)
+    index.remove(9)
+    searched = np.array(sorted(p for p in bags if p != 9), dtype=np.int64)
+    query = Counter(rng.integers(0, 40, 25).tolist())
+    expected = [similarity(query, bags[int(p)]) for p in searched]
+    np.testing.assert_array_equal(index.similarities(query, searched), expected)
+    assert index.similarities(Counter(), searched).tolist() == [0.0] * len(searched)

@@ -181,9 +181,40 @@ def test_false_closures_follow_the_rate() -> None:
 
 
 def test_components_label_each_piece_from_the_first_vertex() -> None:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     from slamfront.core.posegraph import connected_labels
 
     # two pieces and a lone vertex, edges listed backwards
     assert connected_labels(6, np.array([4, 1, 2]), np.array([5, 0, 1])).tolist() == [0, 0, 0, 1, 2, 2]
     assert connected_labels(1, np.array([], np.int64), np.array([], np.int64)).tolist() == [0]
     assert connected_labels(4, np.array([3]), np.array([3])).tolist() == [0, 1, 2, 3]  # a self-loop joins nothing
+    rng = np.random.default_rng(0)
+    for trial in range(100):
+        n = int(rng.integers(1, 200))
+        a, b = rng.integers(0, n, n), rng.integers(0, n, n)
+        if trial % 3 == 0:  # a long chain, listed backwards: the slowest case for label propagation
+            a = np.arange(n - 1)[::-1]
+            b = a + 1
+        _, expected = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+        assert connected_labels(n, a, b).tolist() == expected.tolist()
+
+
+def test_the_fast_reader_and_the_line_by_line_reader_agree() -> None:
+    from slamfront.core import graph_files
+
+    text = [
+        "# a comment line", "VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0.1  # trailing comment", "VERTEX_SE2 2 2 0 0.2",
+        "EDGE_SE2 0 1 1 0 0.1 10 0 0 10 0 20", "LANDMARK 1 7 2 3 1 0 1", "EDGE_SE2 1 2 1 0 0.1 10 0 0 10 0 20",
+        "", "EDGE_SE2 0 2 2.0000000000000004 1e-3 .2 10 1 0 10 0 20", "FIX 0",
+    ]
+    fast = graph_files._parse_regular(text, "g.g2o", "auto")
+    checked = graph_files._parse_checked(text, "g.g2o", "auto")
+    assert fast.format == checked.format and fast.skipped == checked.skipped == {"LANDMARK": 1}
+    for name in ("ids", "poses", "sources", "targets", "measurements", "information", "fixed", "lines"):
+        np.testing.assert_array_equal(getattr(fast.graph, name), getattr(checked.graph, name))
+    for irregular in (text + ["EDGE_SE2 0 1 1 0"], text + ["EDGE_SE2 0 1 1 0 x 1 0 0 1 0 1"], text + ["EDGE_FOO 1"],
+                      text + ["EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1"], text + ["FIX a"]):
+        with pytest.raises(graph_files._Irregular):
+            graph_files._parse_regular(irregular, "g.g2o", "auto")

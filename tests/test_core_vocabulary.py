@@ -191,3 +191,86 @@ def test_l2_distances_and_thresholds_are_squared() -> None:
     greedy = vocabulary.update(np.array([[9.19]], np.float32), "greedy", VocabularyThresholds(0.8, 1.0, 80.0))
     assert len(greedy.new_words) == 1  # 9.19^2 = 84.5 > T_ND2 = 80: a word by distance alone
     assert greedy.decided_by.tolist() == [1]
+
+
+def _reference_update(vocabulary: OnlineVocabulary, descriptors: np.ndarray, rule: str, t: VocabularyThresholds):
+    """The update loop in plain Python (the form the compiled loop replaced), word ids only."""
+    from slamfront.core.vocabulary import decide
+
+    n = len(descriptors)
+    nd0, nnd0, word0 = vocabulary.nearest(descriptors)
+    order = np.argsort(-nd0, kind="stable") if rule == "greedy" else np.arange(n)
+    among = vocabulary._in_unit(pairwise(descriptors, descriptors, vocabulary.metric).astype(np.float64))
+    new_d1, new_d2, new_w1 = np.full(n, np.inf), np.full(n, np.inf), np.full(n, -1)
+    words, distances, decided = np.empty(n, np.int64), np.empty(n), np.empty(n, np.int8)
+    next_id = len(vocabulary)
+    for k in order.tolist():
+        if new_d1[k] < nd0[k]:
+            nd, nearest, nnd = new_d1[k], int(new_w1[k]), min(nd0[k], new_d2[k])
+        else:
+            nd, nearest, nnd = nd0[k], int(word0[k]), min(nnd0[k], new_d1[k])
+        new, decided[k] = decide(rule, float(nd), float(nnd), t)  # type: ignore[arg-type]
+        if new:
+            words[k], distances[k] = next_id, 0.0
+            column = among[:, k]
+            closer = column < new_d1
+            new_d2 = np.where(closer, new_d1, np.minimum(new_d2, column))
+            new_w1 = np.where(closer, next_id, new_w1)
+            new_d1 = np.where(closer, column, new_d1)
+            next_id += 1
+        else:
+            words[k], distances[k] = nearest, nd
+    return words, distances, decided
+
+
+@pytest.mark.parametrize("metric", ["l2", "hamming"])
+@pytest.mark.parametrize("rule", ["greedy", "nndr"])
+def test_the_compiled_update_loop_decides_as_the_python_one(metric: str, rule: str) -> None:
+    rng = np.random.default_rng(11)
+    if metric == "l2":
+        frames = [np.round(rng.normal(size=(80, 8)) * 3).astype(np.float32) for _ in range(6)]
+        t = VocabularyThresholds(0.8, 2.0, 60.0)
+    else:
+        frames = [(rng.integers(0, 256, (80, 8), dtype=np.uint8) & 0x0F) for _ in range(6)]
+        t = VocabularyThresholds(0.8, 1.0, 14.0)
+    frames[3][:20] = frames[1][:20]  # exact repeats: ties and zero distances
+    vocabulary = OnlineVocabulary(metric, frames[0].shape[1])  # type: ignore[arg-type]
+    for k, descriptors in enumerate(frames):
+        expected = _reference_update(vocabulary, descriptors, rule, t)
+        got = vocabulary.update(descriptors, rule, t)  # type: ignore[arg-type]
+        np.testing.assert_array_equal(got.words, expected[0])
+        np.testing.assert_array_equal(got.distances, expected[1])
+        np.testing.assert_array_equal(got.decided_by, expected[2])
+        if k % 2:
+            vocabulary.retain(got.words)
+        else:
+            vocabulary.truncate(len(vocabulary) - len(got.new_words))
+
+
+def test_the_search_is_tiled_without_changing_a_rank() -> None:
+    rng = np.random.default_rng(5)
+    rows = np.round(rng.normal(size=(3000, 16)) * 20).astype(np.float32)
+    rows[rng.integers(0, 3000, 600)] = rows[0]  # many exact ties: the lower row wins, as argmin
+    queries = np.concatenate([rows[:40], np.round(rng.normal(size=(60, 16)) * 20).astype(np.float32)])
+    whole = nearest_two(queries, rows, "l2", tile=len(rows))
+    for tile, chunk in ((1, 7), (333, 64), (2048, 256)):
+        for a, b in zip(nearest_two(queries, rows, "l2", chunk=chunk, tile=tile), whole):
+            np.testing.assert_array_equal(a, b)
+    norms = np.einsum("ij,ij->i", rows, rows)
+    for a, b in zip(nearest_two(queries, rows, "l2", row_norms=norms), whole):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("length", [32, 64, 61])
+def test_the_compiled_hamming_search_agrees_with_opencv(length: int) -> None:
+    import cv2
+
+    rng = np.random.default_rng(length)
+    rows = rng.integers(0, 256, (2000, length), dtype=np.uint8) & 0x31  # few bits: many ties
+    queries = np.concatenate([rows[:30], rng.integers(0, 256, (50, length), dtype=np.uint8) & 0x31])
+    d1, d2, i1 = nearest_two(queries, rows, "hamming")
+    dist, index = cv2.batchDistance(queries, rows, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
+    np.testing.assert_array_equal(d1, dist[:, 0])
+    np.testing.assert_array_equal(d2, dist[:, 1])
+    np.testing.assert_array_equal(i1, index[:, 0])
+    np.testing.assert_array_equal(pairwise(queries, rows, "hamming")[np.arange(len(queries)), i1], d1)

@@ -205,3 +205,49 @@ def test_trajectory_files_by_column_count(tmp_path: Path) -> None:
         (tmp_path / "t.txt").write_text(text)
         with pytest.raises(DataError, match=re.escape(message)):
             read_trajectory(tmp_path / "t.txt")
+
+
+def test_a_failed_plot_fails_the_command_and_keeps_the_results(cli, ring_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert cli("optimize", ring_file, "-o", out)[0] == 0
+    (out / "before_after.png.tmp").mkdir()  # the plot's temporary file cannot be written
+    code, stdout, err = cli("optimize", ring_file, "-o", out)
+    assert code == 1 and "cost:" in stdout  # the results are shown ...
+    assert "before_after.png: the plot failed" in err.strip().splitlines()[-1]  # ... and the failure said last
+    assert not (out / "before_after.png").exists()  # no plot of the previous run beside these results
+    assert "The plot failed" in (out / "report.md").read_text()
+    assert "the plot failed" in json.loads((out / "metrics.json").read_text())["plot_failed"]
+    assert (out / "optimized.g2o").stat().st_size > 0 and (out / "trajectory.tum").stat().st_size > 0
+
+
+def test_optimize_imports_no_library_it_does_not_use(ring_file: Path, tmp_path: Path) -> None:
+    # the plot is Pillow's; pydantic, matplotlib and the vision libraries stay out of the process
+    import subprocess
+    import sys
+
+    heavy = ("matplotlib", "pydantic", "cv2", "open3d", "scipy", "numba", "mcap")
+    code = (
+        "import sys; from slamfront.cli import main; "
+        f"assert main(['optimize', {str(ring_file)!r}, '-o', {str(tmp_path / 'o')!r}]) == 0; "
+        f"print('loaded:', ','.join(m for m in {heavy!r} if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip().splitlines()[-1] == "loaded:"
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{"kernel_parameter": -1}, {"max_iterations": 0}, {"mode": "online"}, {"gnc_probability": 1.0},
+     {"absolute_tolerance": -1e-3}, {"kernel": "gnc", "mode": "isam2"}],
+)
+def test_solver_options_say_what_pydantic_says_in_a_back_end_config(options: dict[str, object]) -> None:
+    from pydantic import ValidationError
+
+    from slamfront_plugins.backends.gtsam_pose_graph import GtsamPoseGraph
+
+    with pytest.raises(ValueError) as direct:
+        SolverOptions(**options)
+    with pytest.raises(ValidationError) as in_config:
+        GtsamPoseGraph.Config(solver=options)
+    assert str(direct.value).split(": ", 1)[-1] in in_config.value.errors()[0]["msg"]
+    assert GtsamPoseGraph.Config(solver={"max_iterations": "7"}).solver == SolverOptions(max_iterations=7)

@@ -225,7 +225,8 @@ def _format_validation(exc: ValidationError, prefix: str, model: type[BaseModel]
     err = exc.errors()[0]
     loc = ".".join(str(p) for p in (prefix, *err["loc"]) if p != "")
     more = f" [+{len(exc.errors()) - 1} more]" if len(exc.errors()) > 1 else ""
-    if err["type"] == "extra_forbidden" and model is not None and err["loc"]:
+    # a dataclass inside a model (the back end's solver options) reports an unknown key as an unexpected argument
+    if err["type"] in ("extra_forbidden", "unexpected_keyword_argument") and model is not None and err["loc"]:
         *path, key = err["loc"]
         known = model_keys_at(model, path)
         if known is not None:

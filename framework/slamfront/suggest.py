@@ -6,6 +6,7 @@ alike whether it is a plugin name, a stage key, a plugin parameter or a hook.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import inspect
 import types
@@ -31,26 +32,37 @@ def did_you_mean(name: str, known: Iterable[str], what: str = "names") -> str:
 
 def model_keys_at(model: type[BaseModel], path: Sequence[str | int]) -> list[str] | None:
     """The keys a pydantic model accepts at ``path`` (a validation error's ``loc`` minus its
-    last element), following nested models through optional, list and union fields.
+    last element), following nested models (pydantic models or dataclasses) through
+    optional, list and union fields.
 
     :returns: the field names (aliases where set), or None when ``path`` does not lead to
         a model (a free-form dict, say).
     """
-    current: type[BaseModel] | None = model
+    current: type | None = model
     for part in path:
         if isinstance(part, int):  # a list index: the element model was unwrapped already
             continue
-        if current is None or part not in current.model_fields:
+        fields = _fields(current) if current is not None else {}
+        if part not in fields:
             return None
-        current = _model_in(current.model_fields[part].annotation)
+        current = _model_in(fields[part])
     if current is None:
         return None
-    return [field.alias or name for name, field in current.model_fields.items()]
+    if issubclass(current, BaseModel):
+        return [field.alias or name for name, field in current.model_fields.items()]
+    return list(_fields(current))
 
 
-def _model_in(annotation: Any) -> type[BaseModel] | None:
-    """The pydantic model inside ``Model``, ``Model | None``, ``list[Model]`` and the like."""
-    if inspect.isclass(annotation) and issubclass(annotation, BaseModel):
+def _fields(model: type) -> dict[str, Any]:
+    """Field name -> annotation of a pydantic model or a dataclass."""
+    if issubclass(model, BaseModel):
+        return {name: field.annotation for name, field in model.model_fields.items()}
+    return {field.name: typing.get_type_hints(model).get(field.name) for field in dataclasses.fields(model)}
+
+
+def _model_in(annotation: Any) -> type | None:
+    """The pydantic model or dataclass inside ``Model``, ``Model | None``, ``list[Model]`` and the like."""
+    if inspect.isclass(annotation) and (issubclass(annotation, BaseModel) or dataclasses.is_dataclass(annotation)):
         return annotation
     if typing.get_origin(annotation) in (typing.Union, types.UnionType, list, tuple, typing.Annotated):
         for argument in typing.get_args(annotation):

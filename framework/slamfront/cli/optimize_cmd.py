@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, get_args
 
@@ -48,9 +49,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def options_from(args: argparse.Namespace) -> SolverOptions:
     """The solver options the flags describe (invalid combinations are user errors)."""
-    from pydantic import ValidationError
-
-    from slamfront.posegraph.solver import SolverOptions
+    from slamfront.posegraph.solver import InvalidOption, SolverOptions
 
     try:
         return SolverOptions(
@@ -58,18 +57,21 @@ def options_from(args: argparse.Namespace) -> SolverOptions:
             robust_odometry=args.robust_odometry, gnc_loss=args.gnc_loss, gnc_warm_start=args.gnc_warm_start,
             max_iterations=args.max_iterations, isam2_factorization=args.isam2_factorization,
         )
-    except ValidationError as exc:
-        problem = exc.errors()[0]
-        flag = "--" + "-".join(str(p) for p in problem["loc"]).replace("_", "-") if problem["loc"] else "options"
-        raise SlamfrontError(f"{flag}: {problem['msg'].removeprefix('Value error, ')}") from None
+    except InvalidOption as exc:
+        raise SlamfrontError(f"--{exc.field.replace('_', '-')}: {exc.problem}") from None
+    except ValueError as exc:
+        raise SlamfrontError(f"options: {exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
-    from slamfront.posegraph.workflow import optimize_file
+    from slamfront.posegraph.workflow import PlotFailed, optimize_file
 
     options = options_from(args)
     out_dir = args.out or Path("logs") / "optimize" / args.graph.stem
-    outcome = optimize_file(args.graph, out_dir, options, args.ground_truth, args.graph_format, not args.no_plots)
+    try:
+        outcome = optimize_file(args.graph, out_dir, options, args.ground_truth, args.graph_format, not args.no_plots)
+    except PlotFailed as failure:  # the results are written: show them, then fail
+        outcome = failure.run
     metrics = outcome.metrics
     print(f"graph:   {args.graph} ({metrics['format']}, {metrics['dim']}-D, {metrics['n_vertices']} vertices, "
           f"{metrics['n_edges']} edges)")
@@ -83,4 +85,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ATE:     {metrics['ate_rmse_before_m']:.4g} m -> {metrics['ate_rmse_after_m']:.4g} m")
     print(f"report:  {out_dir / 'report.md'}")
     print(f"metrics: {out_dir / 'metrics.json'}")
+    if "plot_failed" in metrics:
+        print(f"slamfront: error: {metrics['plot_failed']} (every other output is written)", file=sys.stderr)
+        return 1
     return 0

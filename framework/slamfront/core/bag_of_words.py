@@ -77,15 +77,21 @@ class InvertedIndex:
         return bag
 
     def similarities(self, bag: Counter[int], places: np.ndarray) -> np.ndarray:
-        """(M,) Wang et al. 2017 eq. 5 similarity of ``bag`` to each of ``places`` (all indexed)."""
+        """(M,) Wang et al. 2017 eq. 5 similarity of ``bag`` to each of ``places`` (sorted ids, all indexed)."""
         pairs: dict[int, int] = {}
         for word, count in bag.items():
             for place, stored in self._postings.get(word, {}).items():
                 pairs[place] = pairs.get(place, 0) + min(count, stored)
         size = sum(bag.values())
+        places = np.asarray(places, dtype=np.int64)
         out = np.zeros(len(places))
-        for k, place in enumerate(np.asarray(places).tolist()):
-            shared = pairs.get(place, 0)
-            if shared:
-                out[k] = shared / max(size, self._sizes[place])
+        if pairs and len(places):
+            # only the places sharing a word, placed by a search in the sorted ids
+            sharing = np.fromiter(pairs.keys(), dtype=np.int64, count=len(pairs))
+            shared = np.fromiter(pairs.values(), dtype=np.float64, count=len(pairs))
+            larger = np.fromiter((max(size, self._sizes[p]) for p in pairs), dtype=np.float64, count=len(pairs))
+            at = np.searchsorted(places, sharing)
+            found = at < len(places)
+            found[found] = places[at[found]] == sharing[found]
+            out[at[found]] = shared[found] / larger[found]
         return out

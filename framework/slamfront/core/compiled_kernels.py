@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from slamfront.core.kernels import PAIRWISE_BLOCK
 
@@ -147,3 +150,112 @@ def gather(columns, offsets, queries, rows, starts, out, lo, hi):  # type: ignor
                     picked[k] = columns[n + k, row + offsets[v, k]]
                 best = min(best, 0.0 + pairwise_sum(picked, 0, width, frames, partial))
             out[n, row] = best
+
+
+@jit
+def quantise(order, nd0, nnd0, word0, among, greedy, nndr, nd_low, nd_high, first_new, words, distances, decided_by):  # type: ignore[no-untyped-def]
+    # Wang et al. 2017's update loop (slamfront.core.vocabulary), feature by feature in
+    # ``order``: the nearest of the old words (nd0, nnd0, word0) or of the words this
+    # image made so far (kept as running nearest / second nearest per feature from the
+    # feature-to-feature distances ``among``), then the decision; new words get ids
+    # first_new, first_new + 1, ... Writes words / distances / decided_by per feature and
+    # returns the indices of the features that became words, in creation order.
+    n = len(order)
+    new_d1 = np.full(n, np.inf)
+    new_d2 = np.full(n, np.inf)
+    new_w1 = np.full(n, -1, dtype=np.int64)
+    created = np.empty(n, dtype=np.int64)
+    n_created = 0
+    for position in range(n):
+        k = order[position]
+        if new_d1[k] < nd0[k]:
+            nd = new_d1[k]
+            nearest_word = new_w1[k]
+            nnd = min(nd0[k], new_d2[k])
+        else:
+            nd = nd0[k]
+            nearest_word = word0[k]
+            nnd = min(nnd0[k], new_d1[k])
+        # vocabulary.decide: BY_ND_HIGH 1, BY_ND_LOW -1, BY_RATIO 0
+        if greedy and nd > nd_high:
+            new, by = True, 1
+        elif greedy and nd < nd_low:
+            new, by = False, -1
+        else:
+            if np.isinf(nnd):
+                ratio = 1.0
+            elif nnd > 0:
+                ratio = nd / nnd
+            else:
+                ratio = 0.0
+            new, by = ratio > nndr, 0
+        decided_by[k] = by
+        if new:
+            word = first_new + n_created
+            created[n_created] = k
+            n_created += 1
+            words[k] = word
+            distances[k] = 0.0
+            for i in range(n):
+                d = among[i, k]
+                if d < new_d1[i]:
+                    new_d2[i] = new_d1[i]
+                    new_w1[i] = word
+                    new_d1[i] = d
+                else:
+                    new_d2[i] = min(new_d2[i], d)
+        else:
+            words[k] = nearest_word
+            distances[k] = nd
+    return created[:n_created]
+
+
+@intrinsic
+def popcount64(typingctx, x):  # type: ignore[no-untyped-def]
+    # set bits of a uint64: LLVM's ctpop, one instruction where the CPU has one
+    signature = types.uint64(types.uint64)
+
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        return builder.call(builder.module.declare_intrinsic("llvm.ctpop", [ir.IntType(64)]), args)
+
+    return signature, codegen
+
+
+@jit
+def _keep_two(d, j, b1, b2, r1):  # type: ignore[no-untyped-def]
+    # the two smallest distances so far and the row of the smallest, with row j's d;
+    # strict comparisons in row order, so ties go to the lower row
+    if d < b2:
+        if d < b1:
+            return d, b1, j
+        return b1, d, r1
+    return b1, b2, r1
+
+
+@jit
+def two_nearest_hamming(queries, rows, d1, d2, i1):  # type: ignore[no-untyped-def]
+    # per query (packed bits as uint64 words), the smallest and second-smallest Hamming
+    # distance to the rows and the row of the smallest (ties to the lower row, as
+    # cv2.batchDistance with K = 2)
+    n_words = queries.shape[1]
+    for i in range(queries.shape[0]):
+        query = queries[i]
+        b1 = np.int64(1) << 62
+        b2 = np.int64(1) << 62
+        r1 = -1
+        if n_words == 4:  # 256-bit descriptors (ORB, BRIEF), unrolled: ~1.5x the loop below
+            q0, q1, q2, q3 = query[0], query[1], query[2], query[3]
+            for j in range(rows.shape[0]):
+                d = (np.int64(popcount64(q0 ^ rows[j, 0])) + np.int64(popcount64(q1 ^ rows[j, 1]))
+                     + np.int64(popcount64(q2 ^ rows[j, 2])) + np.int64(popcount64(q3 ^ rows[j, 3])))
+                b1, b2, r1 = _keep_two(d, j, b1, b2, r1)
+        else:
+            for j in range(rows.shape[0]):
+                row = rows[j]
+                d = np.int64(0)
+                for k in range(n_words):
+                    d += np.int64(popcount64(query[k] ^ row[k]))
+                b1, b2, r1 = _keep_two(d, j, b1, b2, r1)
+        d1[i] = b1
+        d2[i] = b2
+        i1[i] = r1

@@ -78,6 +78,9 @@ def pairwise(
         return _compiled_l1(a, b, threads)
     out = np.empty((len(a), len(b)), dtype=np.float32)
     chunk = max(1, min(chunk, max_elements // max(b.size, 1)))
+    words = None
+    if metric == "hamming" and a.dtype == b.dtype == np.uint8 and a.shape[1] % 8 == 0 and hasattr(np, "bitwise_count"):
+        words = np.ascontiguousarray(b).view(np.uint64)
     for start in range(0, len(a), chunk):
         block = a[start : start + chunk]
         if metric == "l1":
@@ -85,7 +88,11 @@ def pairwise(
         else:
             if a.dtype != np.uint8 or b.dtype != np.uint8:
                 raise CoreError("hamming distance needs uint8-packed binary descriptors")
-            out[start : start + chunk] = _POPCOUNT[np.bitwise_xor(block[:, None, :], b[None, :, :])].sum(-1)
+            if words is not None:  # numpy's popcount on 64-bit words: 8 bytes at a time
+                packed = np.ascontiguousarray(block).view(np.uint64)
+                out[start : start + chunk] = np.bitwise_count(np.bitwise_xor(packed[:, None, :], words[None])).sum(-1)
+            else:
+                out[start : start + chunk] = _POPCOUNT[np.bitwise_xor(block[:, None, :], b[None, :, :])].sum(-1)
     return out
 
 
@@ -166,25 +173,31 @@ def k_nearest(queries: np.ndarray, rows: np.ndarray, k: int, metric: Metric) -> 
 
 
 def nearest_two(
-    queries: np.ndarray, rows: np.ndarray, metric: Metric, chunk: int = 256
+    queries: np.ndarray, rows: np.ndarray, metric: Metric, chunk: int = 256, row_norms: np.ndarray | None = None,
+    tile: int = 2048,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Exact nearest and second-nearest row of ``rows`` (M, D) for each query (N, D).
 
-    The search that keeps an online vocabulary fast: L2 ranks with one BLAS product per
-    chunk of queries (``|w|^2 - 2 q.w``), then recomputes the two winners' distances
-    exactly in float64; Hamming uses OpenCV's SIMD popcount (``cv2.batchDistance``,
-    several times faster than numpy's ``bitwise_count`` on packed rows).
+    The search that keeps an online vocabulary fast: L2 ranks with BLAS products
+    (``|w|^2 - 2 q.w``, float32) of a chunk of queries against a tile of rows at a time,
+    keeping the two best per query as it goes (a few MB that stay in cache, instead of an
+    N x M matrix allocated and scanned again for every image), then recomputes the two
+    winners' distances exactly in float64; Hamming uses OpenCV's SIMD popcount
+    (``cv2.batchDistance``, several times faster than numpy's ``bitwise_count`` on packed
+    rows). Ties go to the lower row index.
 
+    :param row_norms: (M,) float32 ``|w|^2`` of the rows (``np.einsum("ij,ij->i", rows,
+        rows)``), when the caller keeps them (an online vocabulary does); L2 only.
     :returns: ``(d1, d2, i1)``: (N,) float64 distances to the nearest and second nearest
         row, and (N,) int64 index of the nearest. With fewer than two rows the missing
         distances are ``inf`` and a missing index is -1.
     """
     with single_threaded_blas():
-        return _nearest_two(np.atleast_2d(queries), rows, metric, chunk)
+        return _nearest_two(np.atleast_2d(queries), rows, metric, chunk, row_norms, tile)
 
 
 def _nearest_two(
-    queries: np.ndarray, rows: np.ndarray, metric: Metric, chunk: int
+    queries: np.ndarray, rows: np.ndarray, metric: Metric, chunk: int, row_norms: np.ndarray | None, tile: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n, m = len(queries), len(rows)
     d1 = np.full(n, np.inf)
@@ -201,6 +214,10 @@ def _nearest_two(
     if metric == "hamming":
         if queries.dtype != np.uint8 or rows.dtype != np.uint8:
             raise CoreError("hamming distance needs uint8-packed binary descriptors")
+        if queries.shape[1] % 8 == 0:  # whole 64-bit words: a compiled scan with the CPU's popcount
+            packed = np.ascontiguousarray(queries).view(np.uint64)
+            compiled().two_nearest_hamming(packed, np.ascontiguousarray(rows).view(np.uint64), d1, d2, i1)
+            return d1, d2, i1
         import cv2  # only here: the rest of core stays numpy-only
 
         dist, index = cv2.batchDistance(
@@ -213,23 +230,46 @@ def _nearest_two(
         picked = np.take_along_axis(full, order, axis=1).astype(np.float64)
         return picked[:, 0], picked[:, 1], order[:, 0].astype(np.int64)
     rows32 = np.ascontiguousarray(rows, dtype=np.float32)
-    row_norms = np.einsum("ij,ij->i", rows32, rows32)
+    norms = np.einsum("ij,ij->i", rows32, rows32) if row_norms is None else row_norms
     i2 = np.empty(n, dtype=np.int64)
-    everything = np.arange(n)
+    scores = np.empty((min(chunk, n), min(tile, m)), dtype=np.float32)
     for start in range(0, n, chunk):
         block = np.ascontiguousarray(queries[start : start + chunk], dtype=np.float32)
-        # |q|^2 is the same for every row of a query: leave it out of the ranking
-        score = row_norms[None, :] - 2.0 * (block @ rows32.T)
-        local = everything[: len(block)]
-        first = np.argmin(score, axis=1)
-        score[local, first] = np.inf
-        i1[start : start + len(block)] = first
-        i2[start : start + len(block)] = np.argmin(score, axis=1)
-    q64 = queries.astype(np.float64)
-    r64 = rows.astype(np.float64)
-    d1 = np.linalg.norm(q64 - r64[i1], axis=1)
-    d2 = np.linalg.norm(q64 - r64[i2], axis=1)
+        i1[start : start + len(block)], i2[start : start + len(block)] = _two_lowest_scores(block, rows32, norms, scores)
+    d1 = np.linalg.norm(queries.astype(np.float64) - rows[i1].astype(np.float64), axis=1)
+    d2 = np.linalg.norm(queries.astype(np.float64) - rows[i2].astype(np.float64), axis=1)
     swap = d2 < d1  # float32 ranking can swap near-ties; the exact distances decide
     d1[swap], d2[swap] = d2[swap], d1[swap].copy()
     i1 = np.where(swap, i2, i1)
     return d1, d2, i1
+
+
+def _two_lowest_scores(
+    block: np.ndarray, rows: np.ndarray, norms: np.ndarray, scores: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per query of ``block``, the rows with the lowest and second-lowest ``|w|^2 - 2 q.w``
+    (float32; ties to the lower row), a tile of rows at a time through ``scores``."""
+    q, tile = len(block), scores.shape[1]
+    local = np.arange(q)
+    best = np.full(q, np.inf, dtype=np.float32)
+    second = np.full(q, np.inf, dtype=np.float32)
+    first_row = np.zeros(q, dtype=np.int64)
+    second_row = np.zeros(q, dtype=np.int64)
+    for lo in range(0, len(rows), tile):
+        hi = min(lo + tile, len(rows))
+        s = scores[:q, : hi - lo]
+        np.matmul(block, rows[lo:hi].T, out=s)
+        # |q|^2 is the same for every row of a query: leave it out of the ranking
+        np.subtract(norms[lo:hi], np.multiply(s, 2.0, out=s), out=s)
+        t1 = np.argmin(s, axis=1)
+        v1 = s[local, t1]
+        s[local, t1] = np.inf
+        t2 = np.argmin(s, axis=1)
+        v2 = s[local, t2]
+        # merge with the two best of the earlier tiles, whose rows come first (they win ties)
+        new = v1 < best
+        second_row = np.where(new, np.where(v2 < best, t2 + lo, first_row), np.where(v1 < second, t1 + lo, second_row))
+        second = np.where(new, np.minimum(v2, best), np.minimum(v1, second))
+        first_row = np.where(new, t1 + lo, first_row)
+        best = np.where(new, v1, best)
+    return first_row, second_row

@@ -173,6 +173,68 @@ def parse_graph(lines: Iterable[str], name: str = "graph", graph_format: GraphFo
     :raises CoreError: unknown or malformed records, mixed 2-D and 3-D or mixed formats,
         unknown vertex ids, non-positive-definite information, an empty graph.
     """
+    lines = lines if isinstance(lines, list) else list(lines)
+    try:
+        return _parse_regular(lines, name, graph_format)
+    except _Irregular:  # read it again line by line: the first fault in file order is the one reported
+        return _parse_checked(lines, name, graph_format)
+
+
+class _Irregular(Exception):
+    """The fast reader met something only the line-by-line reader reports (or accepts) properly."""
+
+
+def _parse_regular(lines: list[str], name: str, graph_format: GraphFormat) -> ParsedGraph:
+    """The whole file a record type at a time: tokens grouped by tag, then each group
+    converted in one pass. About twice as fast as :func:`_parse_checked` on a clean
+    file (the same numbers: Python's ``int`` and ``float``); anything irregular
+    (an unknown tag, a wrong count, a token that is not a number) hands over to it."""
+    grouped: dict[str, tuple[list[int], list[list[str]]]] = {}
+    for number, text in enumerate(lines, start=1):
+        tokens = (text.split("#", 1)[0] if "#" in text else text).split()
+        if tokens:
+            entry = grouped.get(tokens[0])
+            if entry is None:
+                entry = grouped[tokens[0]] = ([], [])
+            entry[0].append(number)
+            entry[1].append(tokens)
+    tables: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    fixed: list[int] = []
+    skipped: dict[str, int] = {}
+    families: dict[str, tuple[str, int]] = {}
+    dims: dict[int, tuple[str, int]] = {}
+    for tag, (numbers, rows) in sorted(grouped.items(), key=lambda item: item[1][0][0]):  # first seen first
+        record = RECORDS.get(tag)
+        if record is None:
+            raise _Irregular
+        if record.role == "skip":
+            skipped[tag] = len(rows)
+            continue
+        families.setdefault(record.family, (tag, numbers[0]))
+        if record.role == "fix":
+            try:
+                fixed.extend(i for number, tokens in zip(numbers, rows) for i in _ids(tokens[1:], name, number, tag))
+            except CoreError:
+                raise _Irregular from None
+            continue
+        dims.setdefault(record.dim, (tag, numbers[0]))
+        n_ids = 1 if record.role == "vertex" else 2
+        if any(len(tokens) != 1 + n_ids + record.n_numbers for tokens in rows):
+            raise _Irregular
+        try:  # one conversion per record type (Python's own int and float, as line by line)
+            ids = np.fromiter(map(int, [t for tokens in rows for t in tokens[1 : 1 + n_ids]]), np.int64)
+            values = np.fromiter(map(float, [t for tokens in rows for t in tokens[1 + n_ids :]]), np.float64)
+        except (ValueError, OverflowError):  # not a number, or an id beyond 64 bits
+            raise _Irregular from None
+        if np.any(ids < -_MAX_ID):  # -2**63 fits int64 but not the id range
+            raise _Irregular
+        ids, values = ids.reshape(len(rows), n_ids), values.reshape(len(rows), record.n_numbers)
+        tables[tag] = (np.asarray(numbers, dtype=np.int64), ids, values)
+    return _finish(tables, fixed, skipped, families, dims, graph_format, name)
+
+
+def _parse_checked(lines: list[str], name: str, graph_format: GraphFormat) -> ParsedGraph:
+    """Line by line, each line checked as it is read (the first fault in file order is raised)."""
     rows: dict[str, list[tuple[int, list[int], list[float]]]] = {}
     fixed: list[int] = []
     skipped: dict[str, int] = {}
@@ -205,15 +267,36 @@ def parse_graph(lines: Iterable[str], name: str = "graph", graph_format: GraphFo
         ids = _ids(tokens[1 : 1 + n_ids], name, number, tag)
         values = _numbers(tokens[1 + n_ids :], name, number, tag)
         rows.setdefault(tag, []).append((number, ids, values))
+    tables = {
+        tag: (
+            np.array([e[0] for e in entries], dtype=np.int64),
+            np.array([e[1] for e in entries], dtype=np.int64),
+            np.array([e[2] for e in entries], dtype=np.float64),
+        )
+        for tag, entries in rows.items()
+    }
+    return _finish(tables, fixed, skipped, families, dims, graph_format, name)
 
+
+def _finish(
+    tables: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]],
+    fixed: list[int],
+    skipped: dict[str, int],
+    families: dict[str, tuple[str, int]],
+    dims: dict[int, tuple[str, int]],
+    graph_format: GraphFormat,
+    name: str,
+) -> ParsedGraph:
+    """The checks on the whole file, then the graph: ``tables`` holds, per tag, line
+    numbers (R,), ids (R, 1 or 2) and numbers (R, K)."""
     resolved = _resolve_format(families, graph_format, name)
     if len(dims) > 1:
         (tag_a, line_a), (tag_b, line_b) = dims[2], dims[3]
         raise CoreError(f"{name}: mixes 2-D ({tag_a}, line {line_a}) and 3-D ({tag_b}, line {line_b}) records")
-    if not any(RECORDS[tag].role == "edge" for tag in rows):
+    if not any(RECORDS[tag].role == "edge" for tag in tables):
         raise CoreError(f"{name}: no edges found (an empty or non-graph file?)")
     dim = next(iter(dims))
-    graph = _assemble(rows, dim, fixed, name)
+    graph = _assemble(tables, dim, fixed, name)
     return ParsedGraph(graph, resolved, skipped)
 
 
@@ -229,14 +312,11 @@ def _resolve_format(families: dict[str, tuple[str, int]], requested: GraphFormat
     return detected
 
 
-def _assemble(rows: dict[str, list[tuple[int, list[int], list[float]]]], dim: int, fixed: list[int], name: str) -> PoseGraph:
+def _assemble(tables: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], dim: int, fixed: list[int], name: str) -> PoseGraph:
     vertex_ids, vertex_poses = [], []
     sources, targets, measurements, information, edge_lines = [], [], [], [], []
-    for tag, entries in rows.items():
+    for tag, (lines, ids, values) in tables.items():
         record = RECORDS[tag]
-        lines = np.array([e[0] for e in entries], dtype=np.int64)
-        ids = np.array([e[1] for e in entries], dtype=np.int64)
-        values = np.array([e[2] for e in entries], dtype=np.float64)
         bad = ~np.all(np.isfinite(values), axis=1)
         if np.any(bad):
             raise CoreError(f"{name}:{int(lines[np.argmax(bad)])}: {tag} has a non-finite number")

@@ -258,10 +258,12 @@ class MemoryManager:
     def transfer_order(self, immune: set[int]) -> list[int]:
         """The WM places that may be transferred, first to go first: lowest weight, longest in WM, oldest."""
         protected = immune | self.recent()
-        return sorted(
-            (place for place in self._wm if place not in protected),
-            key=lambda place: (self._weights[place], self._wm[place], place),
-        )
+        places = np.fromiter(self._wm.keys(), dtype=np.int64, count=len(self._wm))
+        entered = np.fromiter(self._wm.values(), dtype=np.int64, count=len(self._wm))
+        weights = np.fromiter(map(self._weights.__getitem__, self._wm), dtype=np.int64, count=len(self._wm))
+        # one sort in NumPy (keys last to first): every frame over budget asks for it
+        order = places[np.lexsort((places, entered, weights))].tolist()
+        return [place for place in order if place not in protected]
 
     def transfer(
         self, elapsed_s: float, words_arrived: int, immune: set[int], release: Callable[[int], int],

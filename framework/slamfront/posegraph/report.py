@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from slamfront.core.alignment import apply, umeyama
-from slamfront.report.plots import _pyplot
+from slamfront.report.trajectory_figure import BLUE, GREY, RED_LIGHT, Layer, Panel, draw_panels
 
 
 def aligned_to(points: np.ndarray, ground_truth: np.ndarray | None) -> np.ndarray:
@@ -40,34 +40,22 @@ def before_after(
     Estimates are aligned to the ground truth (as for the ATE) so they overlay it; loop
     closures ``loops`` (L, 2) vertex positions are drawn as lines on every panel, with
     their count in the legend. The view is the plane the trajectory spreads in most.
+    Drawn with Pillow (:mod:`slamfront.report.trajectory_figure`: matplotlib's import
+    alone costs more than optimising a graph of a few thousand poses).
     """
-    from matplotlib.collections import LineCollection
-
-    plt = _pyplot()
     shown = {name: aligned_to(points, ground_truth) for name, points in panels.items()}
     stacked = np.concatenate([*shown.values(), *(() if ground_truth is None else (ground_truth,))])
     a, b = _plane(stacked)
-    fig, axes = plt.subplots(1, len(shown), figsize=(5.2 * len(shown), 5), dpi=110, squeeze=False)
-    for ax, (name, points) in zip(axes[0], shown.items()):
+    drawn = []
+    for name, points in shown.items():
+        layers = []
         if ground_truth is not None:
-            ax.plot(ground_truth[:, a], ground_truth[:, b], color="0.6", linewidth=1.6, label="ground truth")
+            layers.append(Layer("ground truth", GREY, 1.6, ground_truth[:, [a, b]]))
         if loops is not None and len(loops):  # long before optimisation (the gap), short after
-            segments = points[loops][:, :, [a, b]]
-            ax.add_collection(LineCollection(segments, colors="tab:red", linewidths=0.8, alpha=0.6,
-                                             label=f"loop closures ({len(loops)})"))
-        ax.plot(points[:, a], points[:, b], color="tab:blue", linewidth=0.8, label="estimate")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel("xyz"[a] + " [m]")
-        ax.set_ylabel("xyz"[b] + " [m]")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+            layers.append(Layer(f"loop closures ({len(loops)})", RED_LIGHT, 1.0, points[loops][:, :, [a, b]]))
+        layers.append(Layer("estimate", BLUE, 1.0, points[:, [a, b]]))
+        drawn.append(Panel(name, "xyz"[a] + " [m]", "xyz"[b] + " [m]", layers))
+    return draw_panels(drawn, path, title)
 
 
 def metrics_table(metrics: Mapping[str, Any], keys: Sequence[str] | None = None) -> str:

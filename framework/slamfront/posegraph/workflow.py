@@ -8,6 +8,7 @@ frames' times when the input is a run log, else vertex ids), ``report.md`` and
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import numpy as np
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.graph_files import GraphFormat
+from slamfront.core.posegraph import PoseGraph
 from slamfront.outputs import make_folder
 from slamfront.posegraph import report
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_text, write_tum
@@ -38,6 +40,15 @@ class OptimizeRun:
     metrics: dict[str, Any]
     result: OptimizationResult
     files: list[Path]
+
+
+class PlotFailed(Exception):
+    """The plot failed; every other output was written (``run``), and the report and
+    metrics say so (an older run's plot is removed)."""
+
+    def __init__(self, message: str, run: OptimizeRun) -> None:
+        super().__init__(message)
+        self.run = run
 
 
 def optimize_file(
@@ -82,22 +93,16 @@ def optimize_file(
         write_tum(out_dir / "trajectory.tum", graph, result.poses, loaded.timestamps),
         write_tum(out_dir / "initial.tum", graph, result.initial, loaded.timestamps),
     ]
-    figures = []
+    figures, plot_failure = [], ""
     if plots:
-        loops = np.flatnonzero(~graph.is_odometry())
-        pairs = np.stack([graph.index_of(graph.sources[loops]), graph.index_of(graph.targets[loops])], axis=1)
-        figure = report.before_after(
-            {
-                f"initial (cost {result.cost_before:.4g})": result.initial[:, :d, d],
-                f"optimised (cost {result.cost_after:.4g}, {result.iterations} iterations)": result.poses[:, :d, d],
-            },
-            out_dir / "before_after.png",
-            ground_truth=truth,
-            loops=pairs,
-            title=f"{Path(graph_path).name}: {options.mode}, kernel {options.kernel}",
-        )
-        figures.append(figure)
-        files.append(figure)
+        try:
+            figures.append(_plot(out_dir / "before_after.png", graph_path, graph, result, truth, options))
+        except Exception as exc:  # noqa: BLE001 - the results stand; the failure is reported, never hidden
+            plot_failure = f"before_after.png: the plot failed: {type(exc).__name__}: {exc}"
+            metrics["plot_failed"] = plot_failure
+            with contextlib.suppress(OSError):  # an older run's plot must not sit beside these results
+                (out_dir / "before_after.png").unlink(missing_ok=True)
+    files += figures
     markdown = [
         f"# Pose-graph optimisation: {Path(graph_path).name}",
         "",
@@ -107,7 +112,29 @@ def optimize_file(
         "ATE: RMSE of vertex positions after a rigid alignment to the ground truth.",
         "",
         *(f"![{f.name}]({f.name})\n" for f in figures),
+        *([f"**The plot failed**: {plot_failure}\n"] if plot_failure else []),
     ]
     files.append(write_text(out_dir / "report.md", "\n".join(markdown) + "\n"))
     files.append(write_json_atomically(out_dir / "metrics.json", metrics))
-    return OptimizeRun(out_dir, metrics, result, files)
+    run = OptimizeRun(out_dir, metrics, result, files)
+    if plot_failure:
+        raise PlotFailed(plot_failure, run)
+    return run
+
+
+def _plot(
+    path: Path, graph_path: Path, graph: PoseGraph, result: OptimizationResult, truth: np.ndarray | None,
+    options: SolverOptions,
+) -> Path:
+    d = graph.dim
+    loops = np.flatnonzero(~graph.is_odometry())
+    return report.before_after(
+        {
+            f"initial (cost {result.cost_before:.4g})": result.initial[:, :d, d],
+            f"optimised (cost {result.cost_after:.4g}, {result.iterations} iterations)": result.poses[:, :d, d],
+        },
+        path,
+        ground_truth=truth,
+        loops=np.stack([graph.index_of(graph.sources[loops]), graph.index_of(graph.targets[loops])], axis=1),
+        title=f"{Path(graph_path).name}: {options.mode}, kernel {options.kernel}",
+    )

@@ -23,6 +23,7 @@ from slamfront.core.vocabulary import (
     Quantisation,
     UpdateRule,
     VocabularyThresholds,
+    warm_up,
 )
 from slamfront.local_features import DESCRIPTORS, DescriptorName
 from slamfront.messages import Features, LoopResult, Message
@@ -207,6 +208,7 @@ class BowBayes(LoopDetector):
         self._most_features = 0
         self.clock: Callable[[], float] = time.perf_counter
         """Seconds, for the time budget; tests swap in a modelled clock to be deterministic."""
+        warm_up()  # the compiled quantisation loop, loaded now rather than in the first frame's time
 
     # --- set-up -------------------------------------------------------------------
 
