@@ -32,7 +32,10 @@ from slamfront.mcaplog.topics import topic_for  # noqa: E402
 from slamfront.messages import LoopResult  # noqa: E402
 from slamfront.recipe import build_pipeline, load_recipe  # noqa: E402
 from slamfront.runtime import run_pipeline  # noqa: E402
+from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision  # noqa: E402
 from slamfront_plugins.loop_detectors.hierarchical_sequence import SequenceDecision  # noqa: E402
+
+Decision = SequenceDecision | FaithfulSequenceDecision
 
 QUICK = ["log.images=false", "eval.retrieval_max_k=0", "eval.tolerances=[]", "eval.plots=false"]
 KEYS = ("recall_at_100p", "auc_pr", "correct_answer_ceiling", "answered_of_answerable", "n_distances")
@@ -50,15 +53,15 @@ DEVIATIONS = [  # label, overrides of nordland_hsl (the frame-level mode)
 ]
 
 
-def run(recipe: str, overrides: list[str], out: Path) -> tuple[dict, list[tuple[SequenceDecision, bool]]]:
+def run(recipe: str, overrides: list[str], out: Path) -> tuple[dict, list[tuple[Decision, bool]]]:
     """The run's metrics, and each level-3 decision with whether its last query frame's answer
     is correct (zeta 3; exp. 1 is frame-aligned: query k shows summer frame k)."""
     loaded, path = load_recipe(recipe, [*QUICK, *overrides])
     result = run_pipeline(build_pipeline(loaded, str(path)), str(path), out, progress=False)
-    topics = [topic_for("loop_detector", SequenceDecision), topic_for("loop_detector", LoopResult)]
+    topics = [topic_for("loop_detector", kind) for kind in (SequenceDecision, FaithfulSequenceDecision, LoopResult)]
     decisions, answers = [], {}
     for message in read_messages(result.log_path, topics):
-        if isinstance(message.decoded, SequenceDecision):
+        if isinstance(message.decoded, (SequenceDecision, FaithfulSequenceDecision)):
             decisions.append(message.decoded)
         else:
             answers[message.decoded.frame] = message.decoded.match
@@ -78,7 +81,7 @@ def row(label: str, metrics: dict, seqslam: float | None = None) -> list[object]
 BUCKETS = ("0", "1", "2-3", "4-7", "8-15", "16-31", "32+")
 
 
-def drift(judged: list[tuple[SequenceDecision, bool]], faithful: bool) -> list[list[object]]:
+def drift(judged: list[tuple[Decision, bool]], faithful: bool) -> list[list[object]]:
     """Accuracy of the answered sequences by how many iterations in a row the continuation of
     earlier answers chose them: the track (frame-level), or a rebuilt sequence or the
     synthetic continuation (faithful)."""
@@ -87,7 +90,7 @@ def drift(judged: list[tuple[SequenceDecision, bool]], faithful: bool) -> list[l
     for d, correct in sorted(judged, key=lambda item: item[0].iteration):
         if d.last < 0:
             continue
-        continued = d.used_synthetic or (faithful and d.branch == "rebuilt")
+        continued = d.used_synthetic or d.branch == "rebuilt" if faithful else d.track  # type: ignore[union-attr]
         streak = streak + 1 if continued else 0
         bucket = next(b for b in reversed(BUCKETS) if streak >= int(b.split("-")[0].rstrip("+")))
         runs.setdefault(bucket, []).append(correct)

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
         Plugin,
         PluginConfig,
         Registration,
+        SearchablePlaceMap,
         Source,
         Stage,
         StageInputs,
@@ -37,7 +38,7 @@ _LAZY = {
     **{
         name: "slamfront.plugin"
         for name in ("Backend", "Descriptor", "Localizer", "LoopDetector", "PlaceMap", "Plugin", "PluginConfig",
-                     "Registration", "Source", "Stage", "StageInputs")
+                     "Registration", "SearchablePlaceMap", "Source", "Stage", "StageInputs")
     },
 }
 
@@ -70,6 +71,7 @@ __all__ = [
     "PluginError",
     "RecipeError",
     "Registration",
+    "SearchablePlaceMap",
     "SlamfrontError",
     "Source",
     "Stage",

@@ -2,6 +2,7 @@
 
 from slamfront import hookimpl
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+from slamfront_plugins.loop_detectors.hierarchical_faithful import HierarchicalFaithful
 from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
@@ -9,4 +10,4 @@ from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
 
 @hookimpl
 def slamfront_loop_detectors() -> list[type]:
-    return [NearestNeighbour, HierarchicalSequence, SeqSlam, SeqSlamFast, BowBayes]
+    return [NearestNeighbour, HierarchicalSequence, HierarchicalFaithful, SeqSlam, SeqSlamFast, BowBayes]
