@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import hashlib
 import json
 import os
 import re
@@ -210,12 +211,24 @@ def record(name: str, overrides: list[str], out: Path) -> None:
     run_pipeline(build_pipeline(loaded, str(path)), str(path), folder, progress=False)
 
 
+def code_version() -> str:
+    """A digest of the detector's and the place map's source: finished runs are kept per
+    version, so a run of other code is never reused."""
+    import slamfront_plugins
+
+    root = Path(slamfront_plugins.__file__).parent
+    files = sorted((root / "loop_detectors").glob("hierarchical*.py")) + [
+        root / "loop_detectors" / "place_sequences.py", root / "place_maps" / "hierarchical.py"]
+    return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()[:12]
+
+
 def replay(name: str, setting: Setting, out: Path) -> dict:
     """The row's place map and detector run again with ``setting``; its metrics."""
     from slamfront.recipe import apply_overrides, parse_recipe
     from slamfront.replay import log_recipe_data, replay_log
 
-    folder = out / "runs" / re.sub(r"[^a-z0-9]+", "_", setting.label.lower()).strip("_") / name
+    label = re.sub(r"[^a-z0-9]+", "_", setting.label.lower()).strip("_")
+    folder = out / "runs" / code_version() / label / name
     done = folder / "metrics.json"
     if not done.exists():
         log = out / "records" / name / "run.mcap"
@@ -237,7 +250,9 @@ def spread(values: list[float]) -> str:
 def summarise(results: dict[tuple[int, str], dict]) -> tuple[list[list[object]], list[list[object]]]:
     names = list(rows())
     body, csv_rows = [], []
-    for index, setting in enumerate(SETTINGS):
+    references = [Setting("shipped", f"shipped defaults, {kind} rows", rows=kind) for kind in ("clean", "realign",
+                                                                                               "jumps", "demo")]
+    for index, setting in [(0, r) for r in references] + list(enumerate(SETTINGS))[1:]:
         clean = rows_of(setting, names)
         got = [(n, results[(index, n)], results[(0, n)]) for n in clean if (index, n) in results and (0, n) in results]
         if not got:
@@ -246,15 +261,23 @@ def summarise(results: dict[tuple[int, str], dict]) -> tuple[list[list[object]],
         delta = [m["recall_at_100p"] - s["recall_at_100p"] for _, m, s in got]
         better, worse = sum(d > 0.0005 for d in delta), sum(d < -0.0005 for d in delta)
         distances = np.mean([m["n_distances"] / s["n_distances"] for _, m, s in got])
-        precision = [m.get("precision_at_operating_point", np.nan) for _, m, _ in got]
+        # precision at the operating point over the rows where it accepts something (the
+        # evaluation writes 0 when nothing is accepted: recall 0 too)
+        accepting = [m for _, m, _ in got if m.get("recall_at_operating_point", 0) > 0]
+        precision = [m["precision_at_operating_point"] for m in accepting]
         recall_op = [m.get("recall_at_operating_point", np.nan) for _, m, _ in got]
+        silent = f", accepts nothing on {len(got) - len(accepting)}" if len(accepting) < len(got) else ""
         body.append([
             setting.item, setting.label, f"{len(got)} ({setting.rows})", spread(r100),
             f"{np.mean(delta):+.3f} (min {min(delta):+.3f}; {better} up, {worse} down)",
             spread([m["auc_pr"] for _, m, _ in got]), f"{np.mean([m['correct_answer_ceiling'] for _, m, _ in got]):.3f}",
-            f"{np.nanmin(precision):.3f} / {np.nanmean(recall_op):.3f}", f"{distances:.2f}x",
+            f"{min(precision) if accepting else float('nan'):.3f} / {np.mean(recall_op):.3f}{silent}", f"{distances:.2f}x",
         ])
+        if setting.label.startswith("shipped defaults,"):
+            continue
         csv_rows += [[setting.item, setting.label, n, *(m.get(k, "") for k in KEYS)] for n, m, _ in got]
+    csv_rows = [["shipped", "shipped defaults", n, *(results[(0, n)].get(k, "") for k in KEYS)]
+                for n in names if (0, n) in results] + csv_rows
     return body, csv_rows
 
 
@@ -292,7 +315,8 @@ def main() -> None:
         "back end left out). Zeta 3.",
         "R@100%P: recall at 100 % precision, mean ± sd (min) over the rows; change: paired difference to the "
         "shipped defaults on the same rows (mean, the worst row, how many rows moved by more than 0.0005); "
-        "operating point: the lowest precision over the rows / the mean recall at the detector's own threshold; "
+        "operating point: the lowest precision over the rows where it accepts anything / the mean recall at the "
+        "detector's own threshold; "
         "distances: mean ratio of descriptor distances to the shipped defaults'.",
         table(["item", "setting", "rows", "R@100%P mean ± sd (min)", "change vs shipped", "AUC-PR mean ± sd (min)",
                "ceiling (mean)", "operating point: min precision / mean recall", "distances"], body),

@@ -58,8 +58,7 @@ class PlaceSequenceDetector(LoopDetector):
     branch_keys: tuple[str, ...] = ()
     """Counters a subclass reports in its statistics (``n_<key>``), besides the shared ones."""
 
-    class Config(PlaceSequenceConfig):
-        pass
+    Config = PlaceSequenceConfig
 
     def __init__(self, config: PluginConfig | None = None) -> None:
         super().__init__(config)
