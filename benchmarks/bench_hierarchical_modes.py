@@ -1,15 +1,15 @@
-"""The hierarchical detector's two modes on the whole Nordland route: how each deviation from
+"""The two hierarchical detectors on the whole Nordland route: how each deviation from
 Rodrigues 2019 changes the result, how steady the result is in nu, and whether the
 continuation of earlier answers drifts.
 
 1. nu: the automatic nu (chosen on the summer traversal) and nu +- 0.005, +- 0.01, for the
-   frame-level mode (``nordland_hsl``) and the faithful one (``nordland_hsl_faithful``):
+   frame-level detector (``nordland_hsl``) and the faithful one (``nordland_hsl_faithful``):
    recall at 100 % precision, AUC-PR, the correct-answer ceiling, distances.
-2. Deviations: the frame-level mode with each of its departures from the thesis switched
+2. Deviations: the frame-level detector with each of its departures from the thesis switched
    back one at a time (same route, same nu).
 3. Drift: accuracy of the answers against how many iterations in a row the continuation
    answered (frame-level: the track; faithful: the rebuilt sequence and the synthetic
-   continuation), from the runs' ``SequenceDecision`` messages.
+   continuation), from the runs' ``SequenceDecision`` / ``FaithfulSequenceDecision`` messages.
 
 Run: nice .venv/bin/python benchmarks/bench_hierarchical_modes.py
 """
@@ -39,8 +39,8 @@ Decision = SequenceDecision | FaithfulSequenceDecision
 
 QUICK = ["log.images=false", "eval.retrieval_max_k=0", "eval.tolerances=[]", "eval.plots=false"]
 KEYS = ("recall_at_100p", "auc_pr", "correct_answer_ceiling", "answered_of_answerable", "n_distances")
-DEVIATIONS = [  # label, overrides of nordland_hsl (the frame-level mode)
-    ("frame-level mode, shipped defaults", []),
+DEVIATIONS = [  # label, overrides of nordland_hsl (the frame-level detector)
+    ("frame-level detector, shipped defaults", []),
     ("level 2 of every level-1 candidate in full (refine: 0)", ["loop_detector.params.refine=0"]),
     ("no track (level-1 candidates only)", ["loop_detector.params.track=false"]),
     ("confidence 1 - v/2 of the chosen pairs (eq. 3.14)", ["loop_detector.params.confidence=distance"]),
@@ -48,7 +48,6 @@ DEVIATIONS = [  # label, overrides of nordland_hsl (the frame-level mode)
     ("no level-3 realignment of Q", ["loop_detector.params.realign=false"]),
     ("no waiting / isolation (every answer at once)", ["loop_detector.params.isolate=false"]),
     ("no line check (uniqueness against other candidates only)", ["loop_detector.params.line_check=false"]),
-    ("no cut where the route leaves the line", ["loop_detector.params.leave_line=false"]),
     ("Gaussian 5x5 as the thesis (not scaled to the image)", ["descriptor.params.gaussian_kernel=5"]),
 ]
 
@@ -118,7 +117,7 @@ def main() -> None:
                 sensitivity.append([label, f"{nu_mode + delta:.3f}", metrics["n_places_reference"],
                                     *row("", metrics)[1:]])
             sensitivity.append([label, "range of R@100%P", "", round(max(values) - min(values), 3), "", "", "", ""])
-        deviations = [row("faithful mode (nordland_hsl_faithful)", faithful, seqslam["n_distances"])]
+        deviations = [row("faithful detector (nordland_hsl_faithful)", faithful, seqslam["n_distances"])]
         for label, overrides in DEVIATIONS:
             metrics = base if not overrides else run("nordland_hsl", overrides, Path(scratch) / label[:12])[0]
             deviations.append(row(label, metrics, seqslam["n_distances"]))

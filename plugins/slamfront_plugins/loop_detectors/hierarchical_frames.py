@@ -329,39 +329,3 @@ def realign(
         return chosen[0]
     return placements[int(np.argmin(costs))]
 
-
-def leaves_at(
-    distances: PairDistances,
-    rows: np.ndarray,
-    own: Trajectory,
-    elsewhere: Trajectory,
-    n_map: int,
-    map_informative: np.ndarray,
-) -> int | None:
-    """Where the route left Q's line ``own``: the query position from which Q's newest
-    informative positions ``rows`` fit ``elsewhere`` (the next sequence's trajectory) better,
-    by the split of ``rows`` with the lowest total cost (ties: the latest). None when every
-    row fits ``own`` best.
-
-    Q's line is continued from the sequences before it; a jump in the route (the map holds
-    the next stretch elsewhere) shows first in Q's newest frames, which the line still
-    answers because most of its window is before the jump."""
-    if not len(rows):
-        return None
-    fits = []
-    for line in (own, elsewhere):
-        at = line.at(rows)
-        inside = (at >= 0) & (at < n_map)
-        inside[inside] = map_informative[at[inside]]
-        cost = np.full(len(rows), np.nan)
-        cost[inside] = distances.get(rows[inside], at[inside])
-        fits.append(cost)
-    both = np.concatenate(fits)
-    if not np.isfinite(both).any():
-        return None
-    worst = float(np.nanmax(both))  # a frame a line cannot pair counts as the worst fit seen
-    on_own, on_next = (np.where(np.isnan(f), worst, f) for f in fits)
-    # total[k]: rows[:k] on Q's line, rows[k:] on the next one's
-    total = np.concatenate([[0.0], np.cumsum(on_own)]) + np.concatenate([np.cumsum(on_next[::-1])[::-1], [0.0]])
-    k = len(total) - 1 - int(np.argmin(total[::-1]))
-    return None if k >= len(rows) else int(rows[k])

@@ -16,9 +16,7 @@ candidate: no rho - 1 places needed before it). Then (pure logic in
    with the previous one waits for the next iteration; validated by it, it is answered,
    otherwise it is answered as *isolated* with confidence 0;
 3. level 3: each frame of Q is paired along the best trajectory, re-aligned
-   (``realign``); when the next sequence goes on elsewhere, Q's newest frames that fit
-   its trajectory better get no answer (``leave_line``: the route jumped in the map).
-   The confidence is, for paired traversals, the best trajectory's uniqueness among the
+   (``realign``). The confidence is, for paired traversals, the best trajectory's uniqueness among the
    candidates, ``1 - cost / second`` (second: the best candidate ending more than
    ``uniqueness_window`` frames away), as SeqSLAM's, and at most the answered line's
    uniqueness against itself moved by a few frames (``line_check``: look-alike frames);
@@ -47,7 +45,6 @@ from slamfront_plugins.loop_detectors.hierarchical_frames import (
     PairDistances,
     Trajectory,
     compare_candidates,
-    leaves_at,
     line_uniqueness,
     realign,
     speeds,
@@ -91,8 +88,6 @@ class SequenceDecision(Message):
     line_uniqueness: float = float("nan")
     """How much better the answered line fits than itself moved by ``anchor_slack + 1 ..
     uniqueness_window`` frames (the uniqueness confidence is at most this; NaN: not checked)."""
-    left_line_at: int = -1
-    """The first query frame answered no more because the route left the line there (-1: none)."""
 
 
 UNIQUENESS_ACCEPT = 0.04
@@ -140,8 +135,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
     """
 
     name = "hierarchical_sequence"
-    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map",
-                   "left_the_line")
+    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map")
 
     class Config(PlaceSequenceConfig):
         alpha: int = Field(
@@ -189,10 +183,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
             True, description="uniqueness confidence (paired traversals): the confidence is at most the answered "
             "line's uniqueness against the same line moved by anchor_slack + 1 .. uniqueness_window map frames, "
             "over Q and the window that chose the line (a stretch of look-alike frames cannot say which is right)"
-        )
-        leave_line: bool = Field(
-            True, description="when the next sequence goes on elsewhere, Q's newest frames that fit its trajectory "
-            "better than Q's own line get no answer (the route left the line there)"
         )
 
         @model_validator(mode="before")
@@ -256,8 +246,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         positions = np.asarray([self._position[f] for f in frames], dtype=np.int64)
         end = int(positions[-1])
         start = max(0, end - max(c.sequence_frames, len(frames)) + 1)
-        blind = self._blind_stretch(start, end)
-        rows = self._informative_rows(range(max(start, blind + 1), end + 1))
+        rows = self._informative_rows(range(start, end + 1))
         anchor = self._position[self._frames[places[-1]][0]]
         anchors = [(anchor, int(offsets[h]), int(h)) for h in hits]
         if self._track is not None and c.track:
@@ -265,7 +254,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             anchors.append((at, int(track.at(at)), -1))
         trajectories = compare_candidates(
             self._pairs, anchors, rows, n_map, map_informative, velocities=self._speeds, slack=c.anchor_slack,
-            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=np.asarray([min(max(1.0, c.vmin), c.vmax)]),
+            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=self._speeds,
         )
         if not trajectories:
             self._count("no_candidate")
@@ -279,9 +268,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
             else float(pm.similarity(best.cost))
         consistent = self._track is not None and abs(int(best.at(end)) - int(self._track[0].at(end))) <= c.alpha
         self._track = (best, end)
-        # evidence accumulates along a run of consistent sequences; it restarts with an
-        # inconsistent one, or after a featureless stretch (earlier frames do not vouch for it)
-        self._run = [*self._run, confidence] if consistent and blind < start else [confidence]
+        # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
+        self._run = [*self._run, confidence] if consistent else [confidence]
         record = _Answer(number, places, frames, positions, trajectories, confidence,
                          float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative,
                          int(rows[0]) if len(rows) else start)
@@ -316,22 +304,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
         return np.asarray([t for t in np.asarray(positions, dtype=np.int64).tolist() if self._informative[t]],
                           dtype=np.int64)
 
-    def _blind_stretch(self, start: int, end: int) -> int:
-        """The last query position of the latest run of more than alpha featureless frames in
-        ``start..end`` (-1: none). Nothing tells how far the route went while nothing was
-        seen, so a sequence is not compared across such a stretch."""
-        t = end
-        while t >= start:
-            if self._informative[t]:
-                t -= 1
-                continue
-            last = t
-            while t >= start and not self._informative[t]:
-                t -= 1
-            if last - t > self.config.alpha:
-                return last
-        return -1
-
     # --- level 3 --------------------------------------------------------------------------
 
     def _settle(self, record: _Answer | None) -> list[Message]:
@@ -343,7 +315,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
         waiting, self._waiting = self._waiting, record
         if waiting is None:
             return []
-        c = self.config
         own = waiting.trajectories[0][0]
         first = int(waiting.positions[0])
         if record is not None and record.consistent:
@@ -353,11 +324,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return self._answers(waiting, "validated_by_next", along, record.evidence, span)
         span = (min(waiting.window_start, first), int(waiting.positions[-1]))
         if waiting.consistent:
-            leaves = None
-            if record is not None and c.leave_line:
-                leaves = leaves_at(self._pairs, self._informative_rows(waiting.positions), own,
-                                   record.trajectories[0][0], waiting.n_map, waiting.map_informative)
-            return self._answers(waiting, "consistent", [own], waiting.evidence, span, leaves)
+            return self._answers(waiting, "consistent", [own], waiting.evidence, span)
         return self._answers(waiting, "isolated", [own], 0.0, span)
 
     def _reaches_back(self, waiting: _Answer, record: _Answer) -> bool:
@@ -371,26 +338,22 @@ class HierarchicalSequence(PlaceSequenceDetector):
             and waiting.window_start <= seen[0]
 
     def _answers(
-        self, record: _Answer, branch: str, along: list[Trajectory], confidence: float,
-        span: tuple[int, int], leaves: int | None = None,
+        self, record: _Answer, branch: str, along: list[Trajectory], confidence: float, span: tuple[int, int]
     ) -> list[Message]:
         """Level 3: Q's frames paired along ``along[0]``, or realigned along ``along`` (``realign``);
         ``span``: the query positions that chose the line (Q and the window compared), over
-        which the line is checked against itself moved (``line_check``); frames from query
-        position ``leaves`` on get no answer."""
+        which the line is checked against itself moved (``line_check``)."""
         pm = self.place_map
         c = self.config
         self._count(branch)
         best, source = record.trajectories[0]
-        kept = record.positions if leaves is None else record.positions[record.positions < leaves]
         placement = along[0]
-        if c.realign and len(kept):
-            placement = realign(self._pairs, along, self._informative_rows(kept), c.anchor_slack, record.n_map,
-                                record.map_informative)
+        if c.realign:
+            placement = realign(self._pairs, along, self._informative_rows(record.positions), c.anchor_slack,
+                                record.n_map, record.map_informative)
         local = float("nan")
         if c.line_check and self._confidence_kind == "uniqueness" and confidence > 0:
-            end = span[1] if leaves is None else min(span[1], leaves - 1)
-            rows = self._informative_rows(range(span[0], end + 1))
+            rows = self._informative_rows(range(span[0], span[1] + 1))
             local = line_uniqueness(self._pairs, rows, placement, c.anchor_slack, c.uniqueness_window,
                                     record.n_map, record.map_informative)
             confidence = min(confidence, local)
@@ -405,15 +368,10 @@ class HierarchicalSequence(PlaceSequenceDetector):
             candidate_costs=np.asarray([t.cost for t, _ in record.trajectories], dtype=np.float64),
             branch=branch, first=int(paired[0]), last=int(paired[-1]), cost=best.cost, track=source < 0,
             speed=placement.speed, confidence=confidence, line_uniqueness=local,
-            left_line_at=-1 if leaves is None else int(self._order[leaves]),
         )]
         for k, frame in enumerate(record.frames.tolist()):
             if not self._informative[int(record.positions[k])]:
                 out.append(self._featureless(frame))
-            elif leaves is not None and record.positions[k] >= leaves:
-                self._count("left_the_line")
-                out.append(LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="the route "
-                                      "leaves the answered line here: the next sequence goes on elsewhere"))
             elif not 0 <= paired[k] < record.n_map:
                 self._count("outside_map")
                 out.append(LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
