@@ -326,7 +326,10 @@ def main() -> None:
         "and 3 (frames 0-2899, ten Nordland chunks, ten synthetic pairs); *realign* = those without frames 0-2899 "
         "and the first chunks of 646 and 200; *jumps* = clean without frames 0-2899 and synthetic world 3 at "
         "night, plus seven held-out jump variants inside Nordland 2900-3575; *demo* = demo worlds 0-4 (streams, "
-        "back end left out). Zeta 3.",
+        "back end left out). Zeta 3. The same table for the detector before three things it found not to pay "
+        "were removed (the cut where the route leaves the line, the cut at featureless stretches, screening at "
+        "speed 1 alone): [hierarchical_ablation_before.md](hierarchical_ablation_before.md); which rows shaped what, "
+        "and what each row of this table decided: docs/results.md.",
         "R@100%P: recall at 100 % precision, mean ± sd (min) over the rows; change: paired difference to the "
         "shipped defaults on the same rows (mean, the worst row, how many rows moved by more than 0.0005); "
         "operating point: the lowest precision over the rows where it accepts anything / the mean recall at the "

@@ -37,8 +37,8 @@ MIN_INSIDE = 0.5
 """Share of a sequence's rows a line must pair inside the map, on informative map frames,
 to be scored (on those rows): a route may go on past the map's end, or past a stretch
 the map holds elsewhere, yet half of the sequence still tells where it is. Set when the
-frame-level level 2 was written; measured against all rows and a quarter in
-benchmarks/results/hierarchical_ablation.md."""
+frame-level level 2 was written (on held-out data); requiring all rows or a quarter both
+lose recall on data it was not set on (benchmarks/results/hierarchical_ablation.md)."""
 
 
 @dataclass(frozen=True)
