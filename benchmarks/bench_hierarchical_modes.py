@@ -132,13 +132,13 @@ def main() -> None:
         "## Deviations from Rodrigues 2019, one at a time\n\n"
         + table([*headers, "SeqSLAM distances / these"], deviations),
         "## Sensitivity to nu (auto +- 0.01)\n\n" + table(
-            ["mode", "nu", "reference places", "R@100%P", "AUC-PR", "correct-answer ceiling", "answered of answerable",
+            ["detector", "nu", "reference places", "R@100%P", "AUC-PR", "correct-answer ceiling", "answered of answerable",
              "distances"], sensitivity),
         "## Does the continuation drift? Accuracy of the answered query sequences (their last frame) by how many "
-        "iterations in a row the continuation of earlier answers chose them\n\nFrame-level mode (the track, "
+        "iterations in a row the continuation of earlier answers chose them\n\nFrame-level detector, `hierarchical_sequence` (the track, "
         "re-aligned and competing with level 1 at every iteration):\n\n"
         + table(["iterations in a row", "sequences", "accuracy"], track)
-        + "\n\nFaithful mode (rebuilt sequences and the synthetic continuation of eq. 3.12-3.13):\n\n"
+        + "\n\nFaithful detector, `hierarchical_faithful` (rebuilt sequences and the synthetic continuation of eq. 3.12-3.13):\n\n"
         + table(["iterations in a row", "sequences", "accuracy"], rebuilt),
     ])
     publish("hierarchical_modes", "Hierarchical detector: deviations, nu, drift (Nordland whole route)", body)
