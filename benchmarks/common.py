@@ -97,3 +97,16 @@ def publish(name: str, title: str, body: str, libraries: Sequence[str] = LIBRARI
     text = f"# {title}\n\n{body.rstrip()}\n\n{machine(libraries)}\n"
     (RESULTS / f"{name}.md").write_text(text)
     print(text)
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), for the header of a table of measurements."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()

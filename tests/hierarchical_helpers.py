@@ -6,10 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from slamfront import Frame, StageInputs
+from slamfront import Frame, LoopDetector, PlaceMap, StageInputs
 from slamfront.messages import Features, Message
-from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence
-from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
 
 
 def route_descriptors(n_places: int, frames_per_place: int, dim: int = 32, seed: int = 0) -> np.ndarray:
@@ -32,8 +30,8 @@ def noisy(vectors: np.ndarray, amount: float, seed: int = 1) -> np.ndarray:
 def run_stages(
     vectors: np.ndarray,
     traversals: Sequence[str],
-    place_map: HierarchicalPlaceMap,
-    detector: HierarchicalSequence,
+    place_map: PlaceMap,
+    detector: LoopDetector,
     on_output: list[tuple[int, list[Message]]] | None = None,
 ) -> list[Message]:
     """Run frames through place map and detector as the runtime does; returns every detector output.

@@ -1,5 +1,6 @@
-"""The hierarchical sequence detector online, end to end: hand-made routes, the no-answer paths,
-and the synthetic world (Rodrigues 2019 ch. 3)."""
+"""The hierarchical sequence detectors online, end to end: hand-made routes, the no-answer paths,
+the place-map seam and the synthetic world (Rodrigues 2019 ch. 3). ``faithful`` is
+``hierarchical_faithful``, ``frames`` the frame-level ``hierarchical_sequence``."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ import numpy as np
 import pytest
 import yaml
 
-from slamfront import PluginError
+from slamfront import PlaceMap, PluginError
 from slamfront.messages import LoopResult
 from slamfront.recipe import build_pipeline, load_recipe, recipes_dir
 from slamfront.runtime import run_pipeline
+from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision, HierarchicalFaithful
 from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence, SequenceDecision
+from slamfront_plugins.place_maps.flat import FlatPlaceMap
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
 from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
 
@@ -28,9 +31,13 @@ def _paired(n_places: int, query_places: int | None = None, seed: int = 0):  # t
     return vectors, traversals, len(reference)
 
 
-def _detect(vectors, traversals, **detector):  # type: ignore[no-untyped-def]
-    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
-    found = HierarchicalSequence(HierarchicalSequence.Config(**detector))
+DETECTORS = {"faithful": HierarchicalFaithful, "frames": HierarchicalSequence}
+
+
+def _detect(vectors, traversals, mode="frames", place_map=None, **detector):  # type: ignore[no-untyped-def]
+    place_map = place_map or HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    kind = DETECTORS[mode]
+    found = kind(kind.Config(**detector))
     timeline: list = []
     outputs = run_stages(vectors, traversals, place_map, found, timeline)
     return outputs, timeline, found
@@ -72,7 +79,7 @@ def test_every_query_frame_is_answered_once_online_and_correctly(mode: str) -> N
 def test_decisions_record_the_branch_and_the_candidates() -> None:
     vectors, traversals, _ = _paired(n_places=30)
     outputs, _, _ = _detect(vectors, traversals, mode="faithful")
-    decisions = [m for m in outputs if isinstance(m, SequenceDecision)]
+    decisions = [m for m in outputs if isinstance(m, FaithfulSequenceDecision)]
     assert [d.branch for d in decisions][:2] == ["validated_by_next", "consistent"]
     first = decisions[0]
     assert first.candidates.shape[1] == 2 and len(first.candidate_costs) == len(first.candidates)
@@ -89,7 +96,7 @@ def test_a_wrong_jump_waits_and_is_rebuilt() -> None:
     vectors = np.concatenate([reference, query])
     traversals = ["reference"] * len(reference) + ["query"] * len(query)
     outputs, _, detector = _detect(vectors, traversals, mode="faithful")
-    decisions = {d.iteration: d for d in outputs if isinstance(d, SequenceDecision)}
+    decisions = {d.iteration: d for d in outputs if isinstance(d, FaithfulSequenceDecision)}
     assert decisions[3].branch == "rebuilt"  # the detour: inconsistent with iterations 2 and 4
     assert (decisions[3].first, decisions[3].last) == (5, 14)  # F*,2 = (5, 9) and the 5 places after it
     assert decisions[4].branch == "validated_by_next"
@@ -154,13 +161,55 @@ def test_stream_revisits_are_found_against_earlier_laps(mode: str) -> None:
     assert detector.statistics()["n_map_too_small"] >= 1
 
 
-def test_the_detector_needs_the_hierarchical_place_map(write_recipe) -> None:
+def test_the_detector_needs_a_place_map_stage(write_recipe) -> None:
     recipe = {
         "name": "x", "source": {"plugin": "synthetic", "params": {"frames_per_traversal": 10, "route_length_m": 30}},
         "descriptor": {"plugin": "rst_shelo"}, "loop_detector": {"plugin": "hierarchical_sequence"},
     }
     with pytest.raises(PluginError, match="needs a place_map stage"):
         build_pipeline(*load_recipe(write_recipe(recipe)))
+
+
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_a_place_map_it_cannot_search_by_place_is_refused_by_name(mode: str) -> None:
+    class Unsearchable(PlaceMap):
+        name = "unsearchable"
+
+    with pytest.raises(PluginError, match="'unsearchable', which does not implement SearchablePlaceMap"):
+        DETECTORS[mode]().check({"place_map": Unsearchable()})
+    for searchable in (HierarchicalPlaceMap(), FlatPlaceMap()):
+        DETECTORS[mode]().check({"place_map": searchable})
+
+
+@pytest.mark.parametrize("mode", ["faithful", "frames"])
+def test_the_flat_place_map_runs_the_detector(mode: str) -> None:
+    # one place per frame: Q is rho frames, level 1 searches every reference frame; every
+    # query frame is still answered once, correctly
+    vectors, traversals, n_reference = _paired(n_places=40)
+    outputs, _, detector = _detect(vectors, traversals, mode=mode, place_map=FlatPlaceMap())
+    results = _results(outputs)
+    assert sorted(results) == list(range(n_reference, len(vectors)))
+    assert all(abs(r.match - (r.frame - n_reference)) <= 1 for r in results.values())
+    stats = detector.statistics()
+    searched = 80 - (4 if mode == "faithful" else 0)  # faithful: hits need rho - 1 places before them
+    assert stats["n_searches"] == 80 // 5 and stats["n_distances_search"] == 16 * searched  # rho frames, whole map
+    # the same answers as on the hierarchical map, where its places are single frames too
+    single = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=1.0))
+    again = _results(_detect(vectors, traversals, mode=mode, place_map=single)[0])
+    assert [(r.match, r.confidence) for r in again.values()] == [(r.match, r.confidence) for r in results.values()]
+
+
+def test_a_recipe_still_asking_for_the_faithful_mode_is_told_which_plugin(cli, write_recipe) -> None:
+    recipe = {
+        "name": "old", "source": {"plugin": "synthetic", "params": {"frames_per_traversal": 10, "route_length_m": 30}},
+        "descriptor": {"plugin": "rst_shelo"}, "place_map": {"plugin": "hierarchical"},
+        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"mode": "faithful", "rho": 5}},
+    }
+    code, _, err = cli("run", write_recipe(recipe), "-q")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "plugin: hierarchical_faithful" in err and "Traceback" not in err
+    # the frame-level mode is what hierarchical_sequence is: the old key is accepted as such
+    assert HierarchicalSequence.Config(mode="frames", rho=4) == HierarchicalSequence.Config(rho=4)
 
 
 def test_synthetic_world_revisits_at_full_precision(tmp_path: Path) -> None:
@@ -186,3 +235,6 @@ def test_decisions_round_trip_through_the_log_format() -> None:
     again = SequenceDecision.from_json(decision.to_json())
     assert again.same_as(decision) and again.query_frames.dtype == np.int64
     assert SequenceDecision.json_schema()["properties"]["candidates"]["type"] == "object"
+    outputs, _, _ = _detect(vectors, traversals, mode="faithful")
+    faithful = next(m for m in outputs if isinstance(m, FaithfulSequenceDecision))
+    assert FaithfulSequenceDecision.from_json(faithful.to_json()).same_as(faithful)

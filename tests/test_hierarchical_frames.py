@@ -1,5 +1,6 @@
-"""The frame-level mode of the hierarchical detector: trajectories, the distance cache, the
-track that replaces the rebuilt sequence, and the uniqueness confidence."""
+"""The frame-level hierarchical detector (``hierarchical_sequence``): trajectories, the distance
+cache, the track that replaces the faithful detector's rebuilt sequence, level 3's
+realignment, and the confidences."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from slamfront_plugins.loop_detectors.hierarchical_frames import (
     Trajectory,
     best_trajectory,
     line_uniqueness,
+    realign,
     speeds,
     uniqueness,
 )
@@ -106,7 +108,7 @@ def _run(reference: np.ndarray, query: np.ndarray, **detector):  # type: ignore[
     vectors = np.concatenate([reference, query])
     traversals = ["reference"] * len(reference) + ["query"] * len(query)
     place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
-    found = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", **detector))
+    found = HierarchicalSequence(HierarchicalSequence.Config(**detector))
     outputs = run_stages(vectors, traversals, place_map, found)
     results = {m.frame - len(reference): m for m in outputs if isinstance(m, LoopResult)}
     decisions = [m for m in outputs if isinstance(m, SequenceDecision)]
@@ -122,7 +124,7 @@ def test_the_track_answers_when_level_1_misses_the_place() -> None:
     for place in range(40, 45):
         query[2 * place] = lost[2 * place]
     results, decisions, detector = _run(reference, query, sequence_frames=20)
-    hit_by_track = [d for d in decisions if d.used_synthetic]
+    hit_by_track = [d for d in decisions if d.track]
     assert hit_by_track, "the track never answered"
     for d in hit_by_track:
         for frame in d.query_frames.tolist():
@@ -166,37 +168,29 @@ def test_an_answer_consistent_with_neither_neighbour_is_isolated_with_no_confide
     assert back and all(abs(r.match - (k - 40 - 12 + 52)) <= 1 for k, r in results.items() if k >= 72 and r.match >= 0)
 
 
-def test_frames_past_a_jump_in_the_route_are_not_answered_along_the_old_line() -> None:
+def test_frames_past_a_jump_in_the_route_answered_along_the_old_line_rank_below_true_matches() -> None:
     # the query drives map frames 0..99, then goes on at map frame 160 (the route skips a
     # stretch the map holds): the sequence that ends just past the jump is still consistent
-    # with the line before it, and the next sequence goes on elsewhere
+    # with the line before it, which answers its frames past the jump
     reference = route_descriptors(120, FRAMES_PER_PLACE, seed=2)
     truth = np.concatenate([np.arange(0, 100), np.arange(160, 240)])
     query = noisy(reference[truth], 0.1, seed=4)
 
-    def answers(**switches: bool) -> tuple[list[float], list[float], HierarchicalSequence]:
-        results, _, detector = _run(reference, query, sequence_frames=20, **switches)
+    def answers(**switches: bool) -> tuple[list[float], list[float]]:
+        results, _, _ = _run(reference, query, sequence_frames=20, **switches)
         right = [r.confidence for k, r in results.items() if r.match >= 0 and abs(r.match - truth[k]) <= 1]
         wrong = [r.confidence for k, r in results.items() if r.match >= 0 and abs(r.match - truth[k]) > 1]
-        return right, wrong, detector
+        return right, wrong
 
-    right, wrong, detector = answers()
-    assert len(right) >= 160 and not wrong
-    assert detector.statistics()["n_left_the_line"] >= 8  # the frames past the jump, unanswered
-    # without both checks the old line answers them, more confident than true matches
-    right, wrong, _ = answers(leave_line=False, line_check=False)
+    right, wrong = answers()
+    assert len(right) >= 160 and len(wrong) <= 12
+    assert max(wrong, default=0.0) < min(right)  # the line check: the old line is not unique there
+    # without it the old line answers them more confident than true matches
+    right, wrong = answers(line_check=False)
     assert len(wrong) >= 8 and max(wrong) > min(right)
 
 
 # --- level 3: realignment of Q ------------------------------------------------------------------
-
-
-def _realigner(query: np.ndarray, map_vectors: np.ndarray, slack: int = 2) -> HierarchicalSequence:
-    """A frames-mode detector whose level 3 compares ``query`` (by position) with ``map_vectors``."""
-    detector = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", anchor_slack=slack))
-    detector._pairs = _cache(query, map_vectors, keep=1000)
-    detector._informative = [True] * len(query)
-    return detector
 
 
 def test_q_reaching_back_before_the_next_window_is_realigned_along_its_own_trajectory() -> None:
@@ -205,14 +199,14 @@ def test_q_reaching_back_before_the_next_window_is_realigned_along_its_own_traje
     # misses by up to 6 frames, more than the slack; Q's own line is right.
     map_vectors = route_descriptors(100, 1, seed=11)
     query = noisy(map_vectors, 0.05)
-    detector = _realigner(query, map_vectors)
+    pairs = _cache(query, map_vectors, keep=1000)
     q = np.arange(20, 60)
     informative = np.ones(100, dtype=bool)
     following = Trajectory(cost=0.0, anchor_query=75, anchor_map=75, speed=1.1, rows=40)
     own = Trajectory(cost=0.0, anchor_query=59, anchor_map=59, speed=1.0, rows=40)
-    alone = detector._realign([following], q, 100, informative)
+    alone = realign(pairs, [following], q, 2, 100, informative)
     assert np.abs(alone.at(q) - q).max() > 2  # the failure the own trajectory is there for
-    both = detector._realign([following, own], q, 100, informative)
+    both = realign(pairs, [following, own], q, 2, 100, informative)
     assert np.array_equal(both.at(q), q)
 
 
@@ -222,13 +216,13 @@ def test_a_placement_may_leave_the_map_when_half_of_q_stays_inside() -> None:
     # the map for Q's last 10 frames and is scored on the 10 inside
     route = route_descriptors(80, 1, seed=12)
     query = noisy(route, 0.05)
-    detector = _realigner(query, route[:50])
+    pairs = _cache(query, route[:50], keep=1000)
     q = np.arange(40, 60)
     chosen = Trajectory(cost=0.0, anchor_query=40, anchor_map=38, speed=1.0, rows=10)
-    placed = detector._realign([chosen], q, 50, np.ones(50, dtype=bool))
+    placed = realign(pairs, [chosen], q, 2, 50, np.ones(50, dtype=bool))
     assert np.array_equal(placed.at(q[:10]), q[:10])
     # fewer than half inside: not a placement
-    assert detector._realign([chosen], np.arange(40, 70), 50, np.ones(50, dtype=bool)) == chosen
+    assert realign(pairs, [chosen], np.arange(40, 70), 2, 50, np.ones(50, dtype=bool)) == chosen
 
 
 # --- the confidence of a stream -----------------------------------------------------------------
@@ -243,7 +237,7 @@ def _stream_confidences(kind: str) -> tuple[list[float], list[float]]:
     lap[140:170] = noisy(lap[20:50], 0.3, seed=8)
     vectors = np.concatenate([lap, noisy(lap, 0.1, seed=9)])
     place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
-    detector = HierarchicalSequence(HierarchicalSequence.Config(mode="frames", confidence=kind, sequence_frames=20))
+    detector = HierarchicalSequence(HierarchicalSequence.Config(confidence=kind, sequence_frames=20))
     outputs = run_stages(vectors, ["stream"] * len(vectors), place_map, detector)
     n = len(lap)
     right, wrong = [], []

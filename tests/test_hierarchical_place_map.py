@@ -1,13 +1,15 @@
-"""The hierarchical place map: places by threshold nu, the map graph, exact search (Rodrigues 2019 §3.1)."""
+"""The hierarchical place map: places by threshold nu, the map graph, exact search (Rodrigues 2019 §3.1);
+and the interface the detectors read place maps through, with the flat place map."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from slamfront import Frame, StageInputs
+from slamfront import Frame, SearchablePlaceMap, StageInputs
 from slamfront.core.vptree import brute_force_knn
 from slamfront.messages import Features, PlaceAssignment
+from slamfront_plugins.place_maps.flat import FlatPlaceMap
 from slamfront_plugins.place_maps.hierarchical import (
     HierarchicalPlaceMap,
     PlaceThreshold,
@@ -210,3 +212,42 @@ def test_auto_search_moves_to_a_vp_tree_only_where_it_computes_few_distances(mon
             got = place_map.nearest(query, 5, lo=3, hi=900)
             want = brute_force_knn(query, vectors, 5, "l1", lo=3, hi=900)
             assert got[0].tolist() == want[0].tolist() and np.array_equal(got[1], want[1])
+
+
+# --- the interface the detectors use, and the flat place map ---------------------------------------
+
+
+@pytest.mark.parametrize("make", [lambda: HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9)),
+                                  FlatPlaceMap])
+def test_both_place_maps_implement_the_interface_the_detectors_use(make) -> None:  # type: ignore[no-untyped-def]
+    place_map = make()
+    assert isinstance(place_map, SearchablePlaceMap)
+    vectors = route_descriptors(30, 2, seed=3)
+    traversals = ["reference"] * 40 + ["query"] * 20
+    assignments = _feed(place_map, vectors, traversals)
+    offsets = place_map.place_offsets()
+    # the reference joined the map at once, in order; the query waits for commit()
+    assert offsets[0] == 0 and np.all(np.diff(offsets) > 0) and offsets[-1] == 40
+    assert place_map.map_frames_at(np.arange(40)).tolist() == list(range(40))
+    first = len(offsets) - 1
+    query_place = place_map.place_of(40)
+    assert assignments[40].place == query_place and place_map.commit(query_place) == first
+    assert place_map.commit(query_place) == first and len(place_map.place_offsets()) == first + 2
+    # exact search over the map places' representatives
+    reps = place_map.map_representatives(np.arange(first + 1))
+    positions, distances = place_map.nearest(vectors[45], 3, lo=2, hi=first)
+    expected, _ = brute_force_knn(vectors[45], reps, 3, "l1", 2, first)
+    assert positions.tolist() == expected.tolist() and place_map.search_distances == first - 1
+    assert np.array_equal(place_map.representatives([query_place]), vectors[[40]])
+    assert place_map.similarity(0.0) == 1.0 and place_map.similarity(2.0) == 0.0
+
+
+def test_the_flat_place_map_makes_every_frame_a_place() -> None:
+    place_map = FlatPlaceMap()
+    vectors = route_descriptors(10, 3, seed=4)
+    vectors[5] = 0.0
+    assignments = _feed(place_map, vectors, ["reference"] * 30)
+    assert [(a.frame, a.place, a.new_place) for a in assignments] == [(f, f, True) for f in range(30)]
+    assert place_map.place_offsets().tolist() == list(range(31))
+    assert place_map.informative([4, 5, 6]).tolist() == [True, False, True]
+    assert place_map.statistics() == {"n_places": 30, "n_vertices": 30}

@@ -35,10 +35,16 @@ REPLAYED_PIPELINES: dict[str, dict[str, Any]] = {
         "place_map": {"plugin": "hierarchical"},
         "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3, "sequence_frames": 12}},
     },
-    "hierarchical_sequence_faithful": {
+    "hierarchical_faithful": {
         "descriptor": {"plugin": "rst_shelo", "params": {"cells_x": 16, "cells_y": 12}},
         "place_map": {"plugin": "hierarchical", "params": {"similarity_threshold": 0.9}},
-        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3, "mode": "faithful"}},
+        "loop_detector": {"plugin": "hierarchical_faithful", "params": {"rho": 3}},
+    },
+    # the frame-level detector on the flat place map (one place per frame)
+    "hierarchical_sequence_flat": {
+        "descriptor": {"plugin": "rst_shelo", "params": {"cells_x": 16, "cells_y": 12}},
+        "place_map": {"plugin": "flat"},
+        "loop_detector": {"plugin": "hierarchical_sequence", "params": {"rho": 3, "sequence_frames": 12}},
     },
     # a stream: nu from the first 20 frames, held and placed at once
     "hierarchical_sequence_stream": {

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
         Plugin,
         PluginConfig,
         Registration,
+        SearchablePlaceMap,
         Source,
         Stage,
         StageInputs,
@@ -41,7 +42,7 @@ _LAZY = {
     **{
         name: "slamfront.plugin"
         for name in ("Backend", "Descriptor", "Localizer", "LoopDetector", "PlaceMap", "Plugin", "PluginConfig",
-                     "Registration", "Source", "Stage", "StageInputs")
+                     "Registration", "SearchablePlaceMap", "Source", "Stage", "StageInputs")
     },
 }
 
@@ -78,6 +79,7 @@ __all__ = [
     "PluginError",
     "RecipeError",
     "Registration",
+    "SearchablePlaceMap",
     "SlamfrontError",
     "Source",
     "Stage",

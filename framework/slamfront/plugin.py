@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from slamfront.errors import PluginError
@@ -205,6 +206,66 @@ class PlaceMap(Stage):
 
     kind: ClassVar[Kind] = "place_map"
     requires: ClassVar[tuple[Kind, ...]] = ("descriptor",)
+
+
+@runtime_checkable
+class SearchablePlaceMap(Protocol):
+    """What a sequence loop detector may ask of the recipe's place map, and nothing more.
+
+    A place map groups the frames it sees into *places* (runs of consecutive frames of one
+    traversal) and tells each frame's place in a ``PlaceAssignment``; it may hold frames
+    back (while it calibrates itself) and assign several at once, or in its ``finish``.
+    Some places join its searchable *map* at once (the reference traversal's); a detector
+    adds the others with :meth:`commit`.
+
+    Addresses: frames by frame index; places by place id (every place ever made, in
+    order); map places by *map position* (0, 1, ... in joining order); the frames of the
+    map places, in map order, by *map-frame position*. The built-in ``hierarchical`` place
+    map (Rodrigues 2019 §3.1) and ``flat`` (one place per frame) implement it; a detector
+    checks for it with ``isinstance(place_map, SearchablePlaceMap)``, never for a class.
+    """
+
+    # --- places -------------------------------------------------------------------------
+    def place_of(self, frame: int) -> int:
+        """The id of the place a frame was assigned to."""
+
+    def vectors(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) descriptors of frames (by frame index)."""
+
+    def informative(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n,) bool: frames whose descriptor is not all zeros (not featureless)."""
+
+    def representatives(self, places: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) the vectors places are searched by, R(P) (by place id)."""
+
+    # --- the map --------------------------------------------------------------------------
+    def commit(self, place: int) -> int:
+        """Add a place to the map (places join in order); returns its map position."""
+
+    def place_offsets(self) -> np.ndarray:
+        """(P + 1,) map-frame offsets of the P map places: place p covers ``[o[p], o[p + 1])``."""
+
+    def map_frames_at(self, positions: np.ndarray) -> np.ndarray:
+        """Frame indices at map-frame positions."""
+
+    def map_representatives(self, positions: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) representatives of map places (by map position)."""
+
+    # --- search and distance calibration --------------------------------------------------
+    def nearest(self, vector: np.ndarray, k: int, lo: int = 0, hi: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` map places whose representatives are nearest to ``vector`` among map
+        positions ``lo..hi`` (exact): ``(positions, distances)``, nearest first."""
+
+    @property
+    def search_distances(self) -> int:
+        """Descriptor distances :meth:`nearest` computed so far."""
+
+    @property
+    def metric(self) -> str:
+        """The descriptor distance (``l1``, ``l2``, ``hamming`` or ``cosine``)."""
+
+    def similarity(self, distance: float | np.ndarray) -> float | np.ndarray:
+        """A distance on the map's similarity scale S in [0, 1] (1: identical)."""
 
 
 class LoopDetector(Stage):

@@ -2,6 +2,7 @@
 
 from slamfront import hookimpl
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+from slamfront_plugins.loop_detectors.hierarchical_faithful import HierarchicalFaithful
 from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
@@ -9,15 +10,16 @@ from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
 
 @hookimpl
 def slamfront_loop_detectors() -> list[type]:
-    return [NearestNeighbour, HierarchicalSequence, SeqSlam, SeqSlamFast, BowBayes]
+    return [NearestNeighbour, HierarchicalSequence, HierarchicalFaithful, SeqSlam, SeqSlamFast, BowBayes]
 
 
 @hookimpl
 def slamfront_message_types() -> list[type]:
     from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
+    from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision
     from slamfront_plugins.loop_detectors.hierarchical_sequence import SequenceDecision
 
-    return [BowStatistics, SequenceDecision]
+    return [BowStatistics, SequenceDecision, FaithfulSequenceDecision]
 
 
 @hookimpl

@@ -1,5 +1,5 @@
-"""Frame-level level 2 of the hierarchical detector (``mode: frames``): candidate sequences
-compared frame by frame, as trajectories through the map frames.
+"""Levels 2 and 3 of the frame-level hierarchical detector (``hierarchical_sequence``):
+candidate sequences compared frame by frame, as trajectories through the map frames.
 
 Rodrigues 2019's level 2 compares the j-th query place with the j-th place of each
 candidate (eq. 3.5). Two traversals split the same route into places differently, so
@@ -27,10 +27,18 @@ order. Every distance is computed once while its query frame is recent
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+MIN_INSIDE = 0.5
+"""Share of a sequence's rows a line must pair inside the map, on informative map frames,
+to be scored (on those rows): a route may go on past the map's end, or past a stretch
+the map holds elsewhere, yet half of the sequence still tells where it is. Set when the
+frame-level level 2 was written (on held-out data); requiring all rows or a quarter both
+lose recall on data it was not set on (benchmarks/results/hierarchical_ablation.md)."""
 
 
 @dataclass(frozen=True)
@@ -145,8 +153,8 @@ def trajectory_costs(
     :param n_map: map-frame positions ``0..n_map-1`` may be paired.
     :param map_informative: (>= n_map,) bool per map-frame position, False for featureless
         frames, which are left out of the pairs (None: all informative).
-    :returns: (S, V) costs, inf where fewer than half of the rows stay inside the map on
-        an informative frame; (S, V) the number of rows each cost is over.
+    :returns: (S, V) costs, inf where fewer than :data:`MIN_INSIDE` of the rows stay inside
+        the map on an informative frame; (S, V) the number of rows each cost is over.
     """
     steps = np.floor((rows[None, :] - anchor_query) * velocities[:, None] + 0.5).astype(np.int64)  # (V, R)
     positions = anchor_map + shifts[:, None, None] + steps[None, :, :]  # (S, V, R)
@@ -154,7 +162,7 @@ def trajectory_costs(
     if map_informative is not None:
         inside[inside] = map_informative[positions[inside]]
     counts = inside.sum(axis=2)
-    enough = counts >= max(1, (len(rows) + 1) // 2)
+    enough = counts >= max(1, math.ceil(len(rows) * MIN_INSIDE))
     costs = np.full(counts.shape, np.inf)
     if enough.any():
         values = np.zeros(positions.shape, dtype=np.float64)
@@ -235,3 +243,89 @@ def line_uniqueness(
     if not np.isfinite(own) or not np.isfinite(second) or second <= 0:
         return 0.0
     return float(np.clip(1.0 - own / second, 0.0, 1.0))
+
+
+# --- level 2: the candidates ------------------------------------------------------------------
+
+
+def compare_candidates(
+    distances: PairDistances,
+    anchors: list[tuple[int, int, int]],
+    rows: np.ndarray,
+    n_map: int,
+    map_informative: np.ndarray,
+    *,
+    velocities: np.ndarray,
+    slack: int,
+    refine: int,
+    screen_frames: int,
+    screen_speeds: np.ndarray,
+) -> list[tuple[Trajectory, int]]:
+    """Level 2, frame by frame: each anchor's best trajectory over the query positions
+    ``rows``, best first (ties: the anchors' order).
+
+    :param anchors: ``(query position, map-frame position, source)``; source >= 0 for a
+        level-1 hit (its map place), < 0 for the track.
+    :param refine: when > 0 and there are more level-1 anchors, only the ``refine`` whose
+        best line at ``screen_speeds`` over the last ``screen_frames`` rows costs least (and
+        the track) get the full comparison, at every speed of ``velocities``.
+    :returns: ``(trajectory, source)`` of the anchors with a trajectory in the map.
+    """
+    kept = anchors
+    searched = [a for a in anchors if a[2] >= 0]
+    if refine and len(searched) > refine:
+        screened = []
+        for k, (t, m, _) in enumerate(searched):
+            found = best_trajectory(distances, rows[-screen_frames:], t, m, slack, screen_speeds, n_map,
+                                    map_informative)
+            if found is not None:
+                screened.append((found.cost, k))
+        kept = [searched[k] for _, k in sorted(screened)[:refine]] + [a for a in anchors if a[2] < 0]
+    found = []
+    for k, (t, m, source) in enumerate(kept):
+        trajectory = best_trajectory(distances, rows, t, m, slack, velocities, n_map, map_informative)
+        if trajectory is not None:
+            found.append((trajectory.cost, k, trajectory, source))
+    return [(trajectory, source) for _, _, trajectory, source in sorted(found, key=lambda f: (f[0], f[1]))]
+
+
+# --- level 3: where Q's frames are answered -----------------------------------------------------
+
+
+def realign(
+    distances: PairDistances,
+    chosen: list[Trajectory],
+    rows: np.ndarray,
+    slack: int,
+    n_map: int,
+    map_informative: np.ndarray,
+) -> Trajectory:
+    """Level 3 (eq. 3.10 on Q's frames): Q's informative query positions ``rows`` slid along
+    the ``chosen`` trajectories and, as the thesis's template matching, at speed 1 through
+    their middle, ``-slack..slack`` map frames; the placement they fit best (ties: the
+    first tried; ``chosen[0]`` when none fits).
+
+    A placement may leave the map (the route goes on past the map's end, or past a
+    stretch the map holds elsewhere) as long as at least half of the rows stay inside, as
+    in level 2; it is scored on those, by level 2's rule (the line alone, no slack)."""
+    if not len(rows):
+        return chosen[0]
+    middle = int(rows[len(rows) // 2])
+    placements: list[Trajectory] = []
+    for trajectory in dict.fromkeys(chosen):
+        placements.append(trajectory)
+        for shift in range(-slack, slack + 1):
+            placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift, 1.0,
+                                         trajectory.rows))
+            if shift:
+                placements.append(Trajectory(trajectory.cost, trajectory.anchor_query,
+                                             trajectory.anchor_map + shift, trajectory.speed, trajectory.rows))
+    costs = []
+    for placement in placements:
+        scored = best_trajectory(distances, rows, placement.anchor_query, placement.anchor_map, 0,
+                                 np.asarray([placement.speed]), n_map, map_informative)
+        costs.append(np.inf if scored is None else scored.cost)
+    if not np.isfinite(min(costs)):
+        return chosen[0]
+    return placements[int(np.argmin(costs))]
+

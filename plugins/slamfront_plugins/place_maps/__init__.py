@@ -1,12 +1,13 @@
 """Built-in place maps and their own messages."""
 
 from slamfront import hookimpl
+from slamfront_plugins.place_maps.flat import FlatPlaceMap
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
 
 
 @hookimpl
 def slamfront_place_maps() -> list[type]:
-    return [HierarchicalPlaceMap]
+    return [HierarchicalPlaceMap, FlatPlaceMap]
 
 
 @hookimpl

@@ -28,7 +28,8 @@ frames of its places in map order, so a detector can expand place sequences to f
 sequences (level 3).
 
 Map positions (0, 1, 2, ... in joining order) are how detectors address map places;
-place ids count every place ever created, map or not.
+place ids count every place ever created, map or not. Detectors read and grow the map
+only through :class:`slamfront.plugin.SearchablePlaceMap`.
 """
 
 from __future__ import annotations
@@ -188,6 +189,7 @@ class HierarchicalPlaceMap(PlaceMap):
         self._map_frames: list[int] = []  # frame indices of the map's places, in map order
         self._map_starts: list[int] = []  # first map-frame position of each map place
         self._map_frame_array = np.empty(0, dtype=np.int64)  # _map_frames as an array, refreshed when it grew
+        self._offsets = np.zeros(1, dtype=np.int64)  # place_offsets(), refreshed when the map grew
         self._tree: VPTree | None = None
         self._representatives: GrowingRows | None = None  # of the map places, by map position
         self._metric = "l1"
@@ -332,6 +334,10 @@ class HierarchicalPlaceMap(PlaceMap):
         """R(P): the place's first descriptor."""
         return self._vectors.view[self.places[place_id].representative_frame]  # type: ignore[union-attr]
 
+    def representatives(self, places: Sequence[int] | np.ndarray) -> np.ndarray:
+        """(n, D) R(P) of places (by place id)."""
+        return self.vectors([self.places[int(p)].representative_frame for p in places])
+
     def place_of(self, frame: int) -> int:
         return self._place_of_frame[frame]
 
@@ -373,7 +379,10 @@ class HierarchicalPlaceMap(PlaceMap):
 
     def place_offsets(self) -> np.ndarray:
         """(P + 1,) map-frame offsets of the map places (CSR): place p is ``[o[p], o[p+1])``."""
-        return np.asarray([*self._map_starts, len(self._map_frames)], dtype=np.int64)
+        if len(self._offsets) != len(self._map_starts) + 1 or self._offsets[-1] != len(self._map_frames):
+            self._offsets = np.asarray([*self._map_starts, len(self._map_frames)], dtype=np.int64)
+            self._offsets.flags.writeable = False
+        return self._offsets
 
     def nearest(self, vector: np.ndarray, k: int, lo: int = 0, hi: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` map places whose representatives are nearest to ``vector``, among map

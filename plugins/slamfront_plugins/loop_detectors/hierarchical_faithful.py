@@ -1,0 +1,242 @@
+"""The ``hierarchical_faithful`` loop detector: Rodrigues 2019's three-level sequence matching
+to the letter (ch. 3; the ``nordland_hsl_faithful`` preset).
+
+Query sequences Q of rho places and level 1 as in :mod:`.place_sequences`, then
+(the pure logic is :mod:`.hierarchical_levels`):
+
+1. level 1 keeps only hits with rho - 1 places before them, each giving the candidate
+   sequence ``F_k = (y_k - rho + 1 .. y_k)``; a map of no more than rho places gives no answer;
+2. level 2: the candidate nearest to Q place by place (eq. 3.5), checked for temporal
+   consistency with the previous iteration; an inconsistent one waits for the next
+   iteration, and one inconsistent with both is rebuilt from the previous processed
+   sequence plus the rho places after it (Alg. 3);
+3. level 3: the chosen place sequence is expanded to frames (padded with neighbouring
+   places when shorter than Q's frames), Q's frames are slid along it (template
+   matching), the synthetic continuation of the previous match competes, and every
+   query frame gets its aligned reference frame with confidence ``1 - v / max_distance``,
+   v being the mean distance of the aligned pairs (eq. 3.14).
+
+Answers come out when Q completes, or one iteration later when its sequence had to wait.
+Every query frame ends with a ``LoopResult``; each level-3 call is logged as a
+:class:`FaithfulSequenceDecision`.
+
+Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsistent:
+- the synthetic descriptor sequence (eq. 3.12) takes as many frames as Q-bar has, so
+  eq. 3.13 compares sums of equal length; it is skipped when the map ends first;
+- a rebuilt sequence is the last rho places of the previous processed sequence plus
+  the rho places after it (it does not keep growing over consecutive rebuilds);
+- featureless query frames (all-zero descriptors) get no answer and are left out of v;
+- at the end of the traversal a sequence still waiting is treated as not validated by
+  the next iteration (rebuilt); places left over after the last full Q get no answer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from slamfront.messages import LoopResult, Message
+from slamfront_plugins.loop_detectors.hierarchical_levels import (
+    Dispatch,
+    FrameMatch,
+    TemporalConsistency,
+    candidate_sequences,
+    match_frames,
+    sequence_costs,
+)
+from slamfront_plugins.loop_detectors.place_sequences import (
+    DISTANCE_ACCEPT,
+    PlaceSequenceConfig,
+    PlaceSequenceDetector,
+)
+
+
+@dataclass(frozen=True, eq=False)
+class FaithfulSequenceDecision(Message):
+    """One level-3 call of the faithful hierarchical detector: which map place sequence answered which query sequence, and why."""
+
+    schema_name: ClassVar[str] = "slamfront.FaithfulSequenceDecision"
+    plain_fields: ClassVar[tuple[str, ...]] = ("candidate_costs",)
+    iteration: int
+    query_places: list[int]
+    query_frames: np.ndarray
+    """(n,) int64 frame indices of Q-bar."""
+    candidates: np.ndarray
+    """(K, 2) int64 level-1 candidate sequences (first, last map position), by eq. 3.5's cost."""
+    candidate_costs: np.ndarray
+    """(K,) float64 eq. 3.5 cost of each candidate: summed place-by-place distance."""
+    branch: str
+    """consistent, validated_by_next, rebuilt or unresolved (Alg. 3)."""
+    first: int = -1
+    """First map place of the chosen sequence F* (-1: none)."""
+    last: int = -1
+    """Last map place of F*."""
+    template_offset: int = -1
+    """Where Q-bar fit best along F-bar (eq. 3.10), in map frames from F-bar's start."""
+    template_cost: float = float("nan")
+    synthetic_cost: float = float("nan")
+    """Summed distance of the synthetic continuation of the previous match (eq. 3.12; NaN: not tried)."""
+    used_synthetic: bool = False
+    """The synthetic continuation won (eq. 3.13)."""
+    padded_places: int = 0
+    """Places added around F* to cover Q-bar's frames."""
+    confidence: float = float("nan")
+    """1 - v / max_distance (eq. 3.14)."""
+    reason: str = ""
+    """Why the sequence got no answer ("": it got one)."""
+
+
+@dataclass
+class _Iteration:
+    """A query sequence between level 2 and level 3."""
+
+    number: int
+    places: list[int]
+    frames: np.ndarray
+    candidates: list[tuple[int, int]]
+    costs: np.ndarray
+
+
+class HierarchicalFaithful(PlaceSequenceDetector):
+    """Rodrigues 2019's three-level sequence detector to the letter: place-by-place level 2, rebuilt sequences, synthetic continuation.
+
+    Query sequences of ``rho`` places are searched in the map: level 1 finds ``psi``
+    candidate places, level 2 keeps the candidate sequence nearest to Q place by place
+    (eq. 3.5) that is temporally consistent (``alpha``), level 3 aligns the frames by
+    template matching and gives each query frame a match with confidence ``1 - v/2``
+    (eq. 3.14), or an explicit no-answer. Defaults of rho, psi, alpha: Table 4.1. Needs
+    a place map that can be searched by place (``hierarchical``, Rodrigues 2019 §3.1).
+    ``hierarchical_sequence`` is the frame-level variant the recipes use by default.
+    """
+
+    name = "hierarchical_faithful"
+    branch_keys = ("consistent", "validated_by_next", "rebuilt", "unresolved", "synthetic_frames", "no_padding")
+
+    class Config(PlaceSequenceConfig):
+        alpha: int = Field(
+            5, ge=1, description="temporal consistency: |I(f_rho^{i-1}) - I(f_1^i)| < alpha places (Table 4.1)"
+        )
+        accept_confidence: float = Field(
+            DISTANCE_ACCEPT, ge=0, le=1,
+            description="operating point: matches at this confidence 1 - v/2 (eq. 3.14) or more are accepted",
+        )
+
+    def __init__(self, config: Config | None = None) -> None:
+        super().__init__(config)
+        c = self.config
+        self._consistency = TemporalConsistency(c.rho, c.alpha)
+        self._iterations: dict[int, _Iteration] = {}
+        self._last_matched: int | None = None  # map-frame position, for the synthetic sequence
+        self._distances = 0
+        self.accept = c.accept_confidence
+
+    # --- levels 1 and 2 -------------------------------------------------------------------
+
+    def _iteration(self, number: int, places: list[int], frames: np.ndarray, stream: bool) -> list[Message]:
+        c = self.config
+        pm = self.place_map
+        usable = self._usable(stream)
+        if usable <= c.rho:
+            self._count("map_too_small")
+            return self._step(number, None) + self._no_answer(
+                frames, f"the map has {max(usable, 0)} places, not more than rho={c.rho}")
+        candidates = candidate_sequences(self._search(places[-1], c.rho - 1, usable), c.rho)
+        if not candidates:
+            self._count("no_candidate")
+            return self._step(number, None) + self._no_answer(frames, "level 1 found no candidate sequence")
+        query_reps = pm.representatives(places)
+        candidate_reps = np.stack([pm.map_representatives(range(first, last + 1)) for first, last in candidates])
+        costs = sequence_costs(query_reps, candidate_reps, pm.metric)
+        self._distances += len(candidates) * c.rho
+        order = np.argsort(costs, kind="stable")
+        ranked = [candidates[k] for k in order]
+        self._iterations[number] = _Iteration(number, places, frames, ranked, costs[order])
+        return self._step(number, ranked[0])
+
+    def _step(self, number: int, best: tuple[int, int] | None) -> list[Message]:
+        """Level 2's temporal consistency (Alg. 3) with this iteration's best candidate (None:
+        it has none, so what waited can no longer be validated by it)."""
+        n_map_places = len(self.place_map.place_offsets()) - 1
+        out: list[Message] = []
+        for dispatch in self._consistency.step(number, best, n_map_places):
+            out += self._level3(dispatch)
+        return out
+
+    def _end(self) -> list[Message]:
+        out: list[Message] = []
+        for dispatch in self._consistency.finish(len(self.place_map.place_offsets()) - 1):
+            out += self._level3(dispatch)
+        return out
+
+    # --- level 3 --------------------------------------------------------------------------
+
+    def _level3(self, dispatch: Dispatch) -> list[Message]:
+        pm = self.place_map
+        iteration = self._iterations.pop(dispatch.iteration)
+        self._count(dispatch.branch)
+        decision = dict(
+            iteration=dispatch.iteration, query_places=iteration.places, query_frames=iteration.frames,
+            candidates=np.asarray(iteration.candidates, dtype=np.int64).reshape(-1, 2),
+            candidate_costs=np.asarray(iteration.costs, dtype=np.float64), branch=dispatch.branch,
+        )
+        if dispatch.sequence is None:
+            reason = "inconsistent with both neighbouring iterations and no earlier sequence to rebuild from"
+            return [FaithfulSequenceDecision(**decision, reason=reason), *self._no_answer(iteration.frames, reason)]
+        query = pm.vectors(iteration.frames)
+        informative = pm.informative(iteration.frames)
+        match = match_frames(
+            query, informative, dispatch.sequence, pm.place_offsets(),
+            lambda start, stop: pm.vectors(pm.map_frames_at(np.arange(start, stop))), pm.metric,
+            self._last_matched, dispatch.synthetic,
+        )
+        self._distances += match.n_distances
+        first, last = dispatch.sequence
+        if match.reason:
+            self._count("no_padding")
+            return [FaithfulSequenceDecision(**decision, first=first, last=last, reason=match.reason),
+                    *self._no_answer(iteration.frames, match.reason)]
+        if match.used_synthetic:
+            self._count("synthetic_frames")
+        self._last_matched = int(match.aligned[-1])
+        confidence = float(pm.similarity(match.mean_distance)) if np.isfinite(match.mean_distance) else 0.0
+        results = self._answers(iteration, match, informative, confidence)
+        record = FaithfulSequenceDecision(
+            **decision, first=first, last=last, template_offset=match.template_offset,
+            template_cost=match.template_cost, synthetic_cost=match.synthetic_cost,
+            used_synthetic=match.used_synthetic, padded_places=match.padded_places, confidence=confidence,
+        )
+        return [record, *results]
+
+    def _answers(
+        self, iteration: _Iteration, match: FrameMatch, informative: np.ndarray, confidence: float
+    ) -> list[LoopResult]:
+        pm = self.place_map
+        matched = pm.map_frames_at(match.aligned)
+        alternatives = self._alternatives(iteration, len(iteration.frames))
+        out = []
+        for k, frame in enumerate(iteration.frames.tolist()):
+            if not informative[k]:
+                out.append(self._featureless(frame))
+                continue
+            ranked = [int(matched[k]), *(int(a) for a in alternatives[k] if a != matched[k])]
+            out.append(self._answer(frame, int(matched[k]), confidence,
+                                    np.asarray(ranked[: self.config.candidates], dtype=np.int64)))
+        return out
+
+    def _alternatives(self, iteration: _Iteration, n: int) -> list[list[int]]:
+        """For recall@K: per query frame, the frame at the same relative position in each
+        other level-1 candidate sequence, in level-2 order (a ranking, not a detection)."""
+        pm = self.place_map
+        offsets = pm.place_offsets()
+        columns = []
+        for first, last in iteration.candidates[1:]:
+            start, stop = int(offsets[first]), int(offsets[last + 1])
+            positions = start + np.minimum((np.arange(n) * (stop - start)) // max(n, 1), stop - start - 1)
+            columns.append(pm.map_frames_at(positions))
+        return [[int(col[k]) for col in columns] for k in range(n)]
+
+    def _sequence_distances(self) -> int:
+        return self._distances

@@ -1,0 +1,213 @@
+"""What both hierarchical detectors share: Alg. 1's loop over query places, and level 1
+(Rodrigues 2019 §3.2, §3.2.1).
+
+Online, as in Alg. 1: query frames arrive one at a time and the place map groups them
+into places. When the rho-th place since the last query sequence is complete (the first
+frame of the next place arrived), the last rho places form the query sequence Q and one
+iteration runs; a stream's Q (or, with ``query_joins_map``, any Q) then joins the map
+(Alg. 1 line 14). Level 1 searches the psi map places nearest to ``R(q_rho)``, the
+representative of Q's newest place. What follows level 1 is each detector's own
+(:mod:`.hierarchical_faithful`, :mod:`.hierarchical_sequence`).
+
+The place map is read only through :class:`slamfront.plugin.SearchablePlaceMap`.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from pydantic import Field
+
+from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront.messages import LoopResult, Message, PlaceAssignment
+from slamfront.plugin import SearchablePlaceMap
+
+DISTANCE_ACCEPT = 0.75
+"""Default operating point of eq. 3.14's confidence ``1 - v/2`` (the faithful detector; the
+frame-level one in a stream). Rodrigues 2019 gives none: set by hand when the detector was
+first written (no measurement behind it), then checked on the held-out synthetic demo
+worlds 100-102, where it accepts closures at precision 0.97-1.0."""
+
+
+class PlaceSequenceConfig(PluginConfig):
+    """The parameters both hierarchical detectors share (defaults: Rodrigues 2019 Table 4.1)."""
+
+    rho: int = Field(5, ge=1, description="places per query sequence |Q| = |F| (Table 4.1)")
+    psi: int = Field(10, ge=1, description="nearest neighbours searched at level 1 (Table 4.1)")
+    query_joins_map: bool = Field(
+        False, description="query places join the map after their iteration (Rodrigues 2019 §4.4 keeps the map "
+        "to the reference traversal; stream traversals always join)"
+    )
+    exclude_recent_places: int = Field(
+        20, ge=0, description="stream traversals: the most recent map places are not loop candidates"
+    )
+    candidates: int = Field(10, ge=1, description="ranked candidate frames reported per query (recall@K)")
+
+
+class PlaceSequenceDetector(LoopDetector):
+    """Base of the hierarchical detectors: query places gathered into sequences of rho, and level 1.
+
+    A subclass implements :meth:`_iteration` (levels 2 and 3 for one Q) and :meth:`_end`
+    (answers still pending when the traversal ends), and sets :attr:`accept`, the
+    operating point of its confidence.
+    """
+
+    requires = ("descriptor", "place_map")
+    branch_keys: tuple[str, ...] = ()
+    """Counters a subclass reports in its statistics (``n_<key>``), besides the shared ones."""
+
+    Config = PlaceSequenceConfig
+
+    def __init__(self, config: PluginConfig | None = None) -> None:
+        super().__init__(config)
+        self._map: SearchablePlaceMap | None = None
+        self._awaiting: deque[tuple[int, str]] = deque()  # (frame, traversal) of query frames not placed yet
+        self._open: int | None = None  # the query place still growing
+        self._pending: list[int] = []  # closed query places not yet in a Q
+        self._frames: dict[int, list[int]] = {}  # frames of the open and pending query places
+        self._traversal: dict[int, str] = {}  # and their traversal
+        self._n_iterations = 0
+        self._counts: dict[str, int] = {}
+        self._query_frames = 0
+        self.accept = 0.0
+        """Operating point: answers at this confidence or more are ``accepted``."""
+
+    def check(self, stages: Mapping[str, Plugin]) -> None:
+        place_map = stages.get("place_map")
+        if not isinstance(place_map, SearchablePlaceMap):
+            found = place_map.name if place_map is not None else "none"
+            raise PluginError(f"needs a place map it can search by place, such as 'hierarchical' or 'flat' (found "
+                              f"{found!r}, which does not implement SearchablePlaceMap)")
+
+    @property
+    def place_map(self) -> SearchablePlaceMap:
+        assert self._map is not None, "no frame has been processed yet"
+        return self._map
+
+    # --- the stream (Alg. 1) --------------------------------------------------------------
+
+    def process(self, inputs: StageInputs) -> Sequence[Message]:
+        self._map = inputs.stages["place_map"]  # type: ignore[assignment]
+        if inputs.frame.traversal != "reference":
+            self._awaiting.append((inputs.frame.index, inputs.frame.traversal))
+        out: list[Message] = []
+        # the place map may place several frames at once (those it held while calibrating)
+        for assignment in inputs.outputs.get("place_map", ()):
+            if isinstance(assignment, PlaceAssignment) and self._awaiting and assignment.frame == self._awaiting[0][0]:
+                _, traversal = self._awaiting.popleft()
+                out += self._placed(assignment.frame, traversal, assignment.place, assignment.new_place)
+        return out
+
+    def finish(self) -> Sequence[Message]:
+        out: list[Message] = []
+        if self._map is None:
+            return out
+        while self._awaiting:  # placed by the place map's own finish (a run shorter than its calibration)
+            frame, traversal = self._awaiting.popleft()
+            place = self._map.place_of(frame)
+            out += self._placed(frame, traversal, place, place != self._open)
+        if self._open is not None:
+            out += self._close(self._open)
+            self._open = None
+        out += self._end()
+        for place in self._pending:
+            out += self._no_answer(self._frames_of([place]), "traversal ended before its query sequence was complete")
+        self._pending = []
+        return out
+
+    def _placed(self, frame: int, traversal: str, place: int, new_place: bool) -> list[Message]:
+        self._query_frames += 1
+        self._seen(frame)
+        out: list[Message] = []
+        if new_place:
+            if self._open is not None:
+                out += self._close(self._open)
+            self._open = place
+            self._frames[place], self._traversal[place] = [], traversal
+        self._frames[place].append(frame)
+        return out
+
+    def _seen(self, frame: int) -> None:
+        """A query frame was placed (in order): for a subclass's own bookkeeping."""
+
+    def _close(self, place: int) -> list[Message]:
+        """A query place is complete; run an iteration when it completes a Q."""
+        self._pending.append(place)
+        if len(self._pending) < self.config.rho:
+            return []
+        places, self._pending = self._pending, []
+        self._n_iterations += 1
+        stream = self._traversal[places[-1]] == "stream"
+        out = self._iteration(self._n_iterations, places, self._frames_of(places), stream)
+        if stream or self.config.query_joins_map:
+            for p in places:  # Alg. 1 line 14: Q joins the map after its iteration
+                self.place_map.commit(p)
+        for p in places:
+            del self._frames[p], self._traversal[p]
+        return out
+
+    def _iteration(self, number: int, places: list[int], frames: np.ndarray, stream: bool) -> list[Message]:
+        """Levels 2 and 3 for query sequence ``number`` (its places and their frames, in order)."""
+        raise NotImplementedError
+
+    def _end(self) -> list[Message]:
+        """The traversal ended: answer what still waits."""
+        return []
+
+    # --- level 1 --------------------------------------------------------------------------
+
+    def _usable(self, stream: bool) -> int:
+        """How many map places level 1 may search (positions 0..usable-1): in a stream, not
+        the ``exclude_recent_places`` most recent (the robot just saw them)."""
+        n_map_places = len(self.place_map.place_offsets()) - 1
+        return n_map_places - (self.config.exclude_recent_places if stream else 0)
+
+    def _search(self, place: int, lo: int, usable: int) -> np.ndarray:
+        """Level 1 (Alg. 2): the psi map places nearest to the place's representative among
+        map positions ``lo..usable-1``, nearest first."""
+        pm = self.place_map
+        self._count("searches")
+        hits, _ = pm.nearest(pm.representatives([place])[0], self.config.psi, lo=lo, hi=usable - 1)
+        return np.asarray(hits, dtype=np.int64)
+
+    # --- answers and bookkeeping -------------------------------------------------------------
+
+    def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray) -> LoopResult:
+        return LoopResult(frame=frame, match=match, confidence=confidence, accepted=confidence >= self.accept,
+                          candidates=candidates)
+
+    def _featureless(self, frame: int) -> LoopResult:
+        self._count("featureless")
+        return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
+                          reason="featureless query frame (no edges to describe)")
+
+    def _no_answer(self, frames: np.ndarray, reason: str) -> list[LoopResult]:
+        self._counts["no_answer_frames"] = self._counts.get("no_answer_frames", 0) + len(frames)
+        return [LoopResult(frame=int(f), match=-1, confidence=0.0, accepted=False, reason=reason) for f in frames]
+
+    def _frames_of(self, places: list[int]) -> np.ndarray:
+        return np.asarray([f for p in places for f in self._frames[p]], dtype=np.int64)
+
+    def _count(self, key: str) -> None:
+        self._counts[key] = self._counts.get(key, 0) + 1
+
+    def _sequence_distances(self) -> int:
+        """Descriptor distances computed after level 1 so far."""
+        return 0
+
+    def statistics(self) -> dict[str, float | int]:
+        search = self._map.search_distances if self._map is not None else 0
+        sequences = self._sequence_distances()
+        stats: dict[str, float | int] = {
+            "n_searches": self._counts.get("searches", 0),
+            "n_query_sequences": self._n_iterations,
+            "n_query_frames": self._query_frames,
+            "n_distances": search + sequences,
+            "n_distances_search": search,
+            "n_distances_sequences": sequences,
+        }
+        for key in (*self.branch_keys, "map_too_small", "no_candidate", "featureless", "no_answer_frames"):
+            stats[f"n_{key}"] = self._counts.get(key, 0)
+        return stats
