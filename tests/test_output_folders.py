@@ -247,3 +247,39 @@ def test_a_run_killed_just_after_writing_an_output_leaves_it_vouched_for(tmp_pat
         assert again.replaced == ["metrics.json"] and not (out / "metrics.json").exists()
     finally:
         again.close()
+
+
+def test_every_writer_replaces_a_planted_link_instead_of_writing_through_it(tmp_path: Path) -> None:
+    """The writers outside run folders (models, maps, pose graphs, campaign tables) rename onto
+    their path too: a link planted there, or at the temporary name beside it, is never followed."""
+    import numpy as np
+
+    from slamfront.formats.ply import write_ply
+    from slamfront.posegraph.io import write_text
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("model.ply", "report.md", "model.ply.tmp", "report.md.tmp"):
+        (elsewhere / name).write_text("the user's file\n")
+        (out / name).symlink_to(elsewhere / name)
+    write_ply(out / "model.ply", np.zeros((4, 3), np.float32))
+    write_text(out / "report.md", "# a report\n")
+    for name in ("model.ply", "report.md", "model.ply.tmp", "report.md.tmp"):
+        assert (elsewhere / name).read_text() == "the user's file\n"
+    assert not (out / "model.ply").is_symlink() and (out / "report.md").read_text() == "# a report\n"
+
+
+def test_a_campaign_worker_cannot_send_back_a_file_outside_its_run_folder(tmp_path: Path) -> None:
+    from slamfront.campaign.store import CampaignStore
+
+    store = CampaignStore.__new__(CampaignStore)
+    folder = tmp_path / "campaign" / "run-0"
+    folder.mkdir(parents=True)
+    for name in ("../../escaped.txt", "/tmp/escaped.txt", ""):
+        with pytest.raises(SlamfrontError, match="outside its run folder"):
+            store.save_files(folder, {name: b"x"})
+    store.save_files(folder, {"plots/pr.png": b"png"})
+    assert (folder / "plots" / "pr.png").read_bytes() == b"png"
+    assert not (tmp_path / "escaped.txt").exists()

@@ -25,7 +25,7 @@ from slamfront.campaign.backends import Backend
 from slamfront.campaign.campaign import CampaignResult
 from slamfront.errors import RecipeError
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
-from slamfront.outputs import make_folder
+from slamfront.outputs import make_folder, write_atomically
 from slamfront.recipe import find_recipe, parse_override, read_recipe_dict
 from slamfront.report import plots
 from slamfront.report.html import write_html
@@ -87,7 +87,7 @@ def compare(
         raise RecipeError("compare needs at least one recipe")
     make_folder(out_dir)
     sweep_path = out_dir / "compare.yaml"
-    sweep_path.write_text(yaml.safe_dump(comparison_sweep(recipes, overrides, out_dir.name), sort_keys=False))
+    write_atomically(sweep_path, yaml.safe_dump(comparison_sweep(recipes, overrides, out_dir.name), sort_keys=False))
     campaign = run_campaign(
         sweep_path, out_dir, backend, force=force, progress=progress, max_frames=max_frames
     )
@@ -152,6 +152,6 @@ def _write_report(rows: list[dict[str, Any]], figures: list[Path], out_dir: Path
     for figure in figures:
         lines += [f"![{figure.stem}]({figure.name})", ""]
     path = out_dir / "comparison.md"
-    path.write_text("\n".join(lines))
+    write_atomically(path, "\n".join(lines))
     write_html(path)
     return path

@@ -20,6 +20,7 @@ import numpy as np
 from slamfront.campaign.plan import format_value, short_name
 from slamfront.campaign.results import ResultsTable
 from slamfront.report import plots
+from slamfront.report.plots import save_figure
 
 MAX_LINES = 10
 _LOWER_IS_BETTER = re.compile(r"(_m|_ms|_s|seconds|rmse|error|_bytes)$")
@@ -126,7 +127,7 @@ def metric_vs_parameter(table: ResultsTable, out_dir: Path) -> list[Path]:
             title += f" (each point: best over {', '.join(short_name(c) for c in collapsed)})"
         _finish(plt, fig, axes[0], title)
         path = out_dir / f"vs_{_file_part(short_name(param))}.png"
-        fig.savefig(path)
+        save_figure(fig, path)
         plt.close(fig)
         figures.append(path)
     return figures
@@ -156,7 +157,7 @@ def methods_side_by_side(table: ResultsTable, out_dir: Path) -> list[Path]:
     suffix = " (best over the swept parameters)" if table.param_columns else ""
     _finish(plt, fig, axes[0], "methods side by side" + suffix)
     path = out_dir / "methods.png"
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
     return [path]
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from slamfront.campaign.plan import short_name
 from slamfront.campaign.results import ResultsTable, cell
 from slamfront.campaign.sweepfile import Sweep
+from slamfront.outputs import write_atomically
 from slamfront.report.html import write_html
 
 
@@ -51,6 +52,6 @@ def write_campaign_report(
         lines += ["", "## Figures", ""]
         lines += [f"![{p.name}]({p.relative_to(out_dir).as_posix()})\n" for p in figures]
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines).rstrip() + "\n")
+    write_atomically(path, "\n".join(lines).rstrip() + "\n")
     write_html(path)  # report.html beside it, its links to the runs' reports pointing at their pages
     return path

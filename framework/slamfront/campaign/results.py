@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any
 
 from slamfront.campaign.plan import PlannedRun, format_value
 from slamfront.campaign.sweepfile import Sweep
+from slamfront.outputs import write_atomically
 
 TIMING_COLUMNS = ("seconds", "wall_seconds")
 """Wall-clock columns: they differ between executions of the same run."""
@@ -147,7 +147,4 @@ def write_json(table: ResultsTable, sweep: Sweep, sweep_path: Path, path: Path) 
 
 def _replace(path: Path, text: str) -> Path:
     """Write through a temporary file: an interrupted write never leaves half a table."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+    return write_atomically(path, text)

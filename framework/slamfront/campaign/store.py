@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +22,8 @@ from typing import Any
 
 from slamfront.campaign.plan import PlannedRun
 from slamfront.campaign.task import RunOutcome
-from slamfront.outputs import folder_lock, make_folder, refuse_links
+from slamfront.errors import SlamfrontError
+from slamfront.outputs import folder_lock, make_folder, refuse_links, write_atomically
 
 RECORD_FILE = "sweep_run.json"
 METRICS_FILE = "metrics.json"
@@ -69,9 +69,12 @@ class CampaignStore:
     def save_files(self, folder: Path, files: dict[str, bytes]) -> None:
         """Files a remote worker sent back (``RunOutcome.files``)."""
         for relative, data in files.items():
+            parts = Path(relative).parts
+            if not parts or Path(relative).is_absolute() or ".." in parts:
+                raise SlamfrontError(f"{folder}: a worker sent back a file outside its run folder: {relative!r}")
             path = folder / relative
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(data)
+            write_atomically(path, data)
 
     def record(self, run: PlannedRun, folder: Path, outcome: RunOutcome) -> dict[str, Any]:
         """Write the run's record (atomically, last: it is what marks the run finished)."""
@@ -90,9 +93,7 @@ class CampaignStore:
             "wall_seconds": outcome.wall_seconds,
             "host": outcome.host,
         }
-        tmp = folder / (RECORD_FILE + ".tmp")
-        tmp.write_text(json.dumps(record, indent=2, default=str) + "\n")
-        os.replace(tmp, folder / RECORD_FILE)
+        write_atomically(folder / RECORD_FILE, json.dumps(record, indent=2, default=str) + "\n")
         return record
 
     @staticmethod

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from slamfront.errors import SlamfrontError, run_failure_of
+from slamfront.outputs import write_atomically
 from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront.runtime import run_pipeline
 
@@ -92,16 +93,16 @@ def run_one(task: RunTask) -> RunOutcome:
             outcome.status, outcome.metrics = "ok", result.metrics
         except SlamfrontError as exc:
             outcome.error = f"{type(exc).__name__}: {exc}"
-            (out_dir / ERROR_FILE).write_text(outcome.error + "\n")
+            write_atomically(out_dir / ERROR_FILE, outcome.error + "\n")
         except Exception as exc:  # a plugin's bug must not stop the campaign: record it with its traceback
             failure = run_failure_of(exc)
             outcome.error = f"{type(exc).__name__}: {exc}" + (f" ({failure.where})" if failure else "")
-            (out_dir / ERROR_FILE).write_text(traceback.format_exc())
+            write_atomically(out_dir / ERROR_FILE, traceback.format_exc())
         except (SystemExit, KeyboardInterrupt) as exc:
             # a run that calls sys.exit() or is interrupted ends that run, not the campaign
             # (on Ray the same run is a failed task too)
             outcome.error = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-            (out_dir / ERROR_FILE).write_text(traceback.format_exc())
+            write_atomically(out_dir / ERROR_FILE, traceback.format_exc())
         outcome.wall_seconds = time.perf_counter() - started
         if task.out_dir is None:
             outcome.files = {

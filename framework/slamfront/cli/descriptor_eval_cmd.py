@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slamfront.errors import DataError, PluginError
-from slamfront.outputs import make_folder
+from slamfront.outputs import make_folder, write_atomically
 
 if TYPE_CHECKING:
     import numpy as np
@@ -119,8 +119,8 @@ def run(args: argparse.Namespace) -> int:
     make_folder(out)
     figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
-    (out / "report.md").write_text(_report(study, args.source, figures))
+    write_atomically(out / "metrics.json", json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
+    write_atomically(out / "report.md", _report(study, args.source, figures))
     if args.json:
         print(json.dumps(metrics, indent=2, default=_plain))
     else:

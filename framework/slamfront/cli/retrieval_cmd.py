@@ -8,7 +8,7 @@ from pathlib import Path
 
 from slamfront.cli.arguments import frame_count
 from slamfront.errors import RecipeError
-from slamfront.outputs import make_folder
+from slamfront.outputs import make_folder, write_atomically
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -57,8 +57,8 @@ def run(args: argparse.Namespace) -> int:
     header = "| psi | " + " | ".join(curves) + " |"
     rows = [f"| {k} | " + " | ".join(f"{curve[k - 1]:.4f}" for curve in curves.values()) + " |" for k in ks]
     table = "\n".join([header, "|" + " --- |" * (len(curves) + 1), *rows])
-    (out / "retrieval.md").write_text(f"# Descriptor retrieval: {args.recipe}\n\n{table}\n\n![retrieval](retrieval.png)\n")
-    (out / "retrieval.json").write_text(json.dumps({k: [float(v) for v in c] for k, c in curves.items()}, indent=2) + "\n")
+    write_atomically(out / "retrieval.md", f"# Descriptor retrieval: {args.recipe}\n\n{table}\n\n![retrieval](retrieval.png)\n")
+    write_atomically(out / "retrieval.json", json.dumps({k: [float(v) for v in c] for k, c in curves.items()}, indent=2) + "\n")
     print(table)
     print(f"plot:  {figure}")
     return 0

@@ -11,7 +11,7 @@ for bit.
 from __future__ import annotations
 
 import dataclasses
-import os
+import io
 import typing
 import zipfile
 from pathlib import Path
@@ -21,6 +21,7 @@ import numpy as np
 
 from slamfront.errors import DataError
 from slamfront.messages import Message, strip_optional
+from slamfront.outputs import write_atomically
 
 M = TypeVar("M", bound=Message)
 
@@ -40,11 +41,9 @@ def write_message_npz(path: Path, message: Message) -> Path:
         else:
             arrays[f.name] = np.asarray(value)
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as handle:
-        np.savez(handle, **arrays)
-    os.replace(tmp, path)
-    return path
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return write_atomically(path, buffer.getvalue())
 
 
 def read_message_npz(path: Path, cls: type[M]) -> M:

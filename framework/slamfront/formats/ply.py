@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
 from slamfront.errors import DataError
+from slamfront.outputs import write_atomically
 
 
 def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None = None) -> Path:
@@ -42,12 +42,8 @@ def write_ply(path: Path, points: np.ndarray, colors: np.ndarray | None = None) 
         *(f"property {types[kind]} {name}" for name, kind in fields),
         "end_header",
     ]) + "\n"
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        with tmp.open("wb") as handle:
-            handle.write(header.encode("ascii"))
-            handle.write(rows.tobytes())
-        os.replace(tmp, path)
+        write_atomically(path, header.encode("ascii") + rows.tobytes())
     except OSError as exc:
         raise DataError(f"{path}: cannot write: {exc.strerror or exc}") from exc
     return path

@@ -6,7 +6,6 @@ CLI reports them in one line with exit code 2.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -218,11 +217,11 @@ def _trajectory_positions(trajectory: pose_files.Trajectory, kind: str, graph: P
 
 
 def write_text(path: Path, text: str) -> Path:
-    """Write through a temporary file and a rename: a crash never leaves half a file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path
+    """Write through a temporary file and a rename: a crash never leaves half a file, and a
+    link planted at ``path`` is replaced, never followed."""
+    from slamfront.outputs import write_atomically
+
+    return write_atomically(path, text)
 
 
 def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:

@@ -25,7 +25,7 @@ from slamfront.outputs import make_folder
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_text
 from slamfront.posegraph.kernels import METHODS, RATES
 from slamfront.posegraph.solver import SolverOptions, objective, optimize
-from slamfront.report.plots import _pyplot
+from slamfront.report.plots import _pyplot, save_figure
 
 
 @dataclass
@@ -167,7 +167,7 @@ def plot(rows: Sequence[StudyRow], path: Path) -> Path:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 

@@ -18,7 +18,7 @@ def _pyplot() -> Any:
     return plt
 
 
-def _save(fig: Any, path: Path) -> None:
+def save_figure(fig: Any, path: Path) -> None:
     """Save a figure without following a link planted at ``path`` (written beside it, renamed onto it)."""
     import io
 
@@ -38,7 +38,7 @@ def _finish(fig: Any, ax: Any, path: Path, title: str, xlabel: str, ylabel: str,
     ax.grid(alpha=0.3)
     ax.legend(loc=legend, fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -147,7 +147,7 @@ def match_plot(
     ax.set_title(title or "matches")
     ax.legend(loc="upper left", fontsize=7)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -200,7 +200,7 @@ def _save_top_view(plt: Any, fig: Any, ax: Any, axes: tuple[int, int], title: st
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -241,7 +241,7 @@ def pair_errors(
     axes[0].legend(fontsize=7, ncols=4, loc="upper right")
     axes[0].set_title(title or "per-pair errors")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -285,7 +285,7 @@ def stacked_seconds(frames: np.ndarray, steps: Mapping[str, np.ndarray], path: P
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=7, ncols=min(len(steps), 4))
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -327,7 +327,7 @@ def cloud_top_view(
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(title or "model (top view)")
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -399,7 +399,7 @@ def error_along(
     ax.set_title(title)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -439,7 +439,7 @@ def _save_panels(plt: Any, fig: Any, axes: np.ndarray, used: int, title: str, pa
     axes.ravel()[0].legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -469,7 +469,7 @@ def series_panels(
     if title:
         axes[0, 0].set_title(title)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
     return path
 
