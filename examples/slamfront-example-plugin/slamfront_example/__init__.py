@@ -8,7 +8,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
-import cv2
 import numpy as np
 from pydantic import Field
 
@@ -49,6 +48,8 @@ class ColourHistogram(slamfront.Descriptor):
         self._warned_grey = False
 
     def process(self, inputs: slamfront.StageInputs) -> Sequence[slamfront.Message]:
+        import cv2  # here, not at the top: `slamfront plugins` lists this plugin without loading OpenCV
+
         image = inputs.frame.image
         if image.ndim == 2 and not self._warned_grey:
             logger.warning("frame %d is grey: hue carries nothing, only saturation 0 is filled", inputs.frame.index)
