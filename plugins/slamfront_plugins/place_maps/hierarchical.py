@@ -44,6 +44,7 @@ from pydantic import Field, model_validator
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
+from slamfront.core.kernels import compiled
 from slamfront.core.vptree import VPTREE_MIN_PLACES, VPTree, brute_force_knn, vptree_pays
 from slamfront.frame import Traversal
 from slamfront.messages import Message, PlaceAssignment
@@ -55,8 +56,21 @@ def place_sizes(vectors: np.ndarray, threshold: float, max_distance: float = 2.0
 
     The same rule as :class:`HierarchicalPlaceMap` (a frame joins the last place while
     ``1 - D(R(P_l), g_t) / max_distance >= nu``), without building a map: used to choose
-    nu from a reference traversal alone.
+    nu from a reference traversal alone. float32 L1 (RST-SHelo) runs as one compiled loop
+    whose distances have the bits of :func:`slamfront.core.distances.to_one`; other
+    metrics and dtypes run :func:`place_sizes_reference`.
     """
+    if metric == "l1" and vectors.dtype == np.float32 and len(vectors):
+        new_place = np.empty(len(vectors), dtype=np.bool_)
+        compiled().greedy_places_l1(np.ascontiguousarray(vectors), float(threshold), float(max_distance), new_place)
+        return np.diff(np.append(np.flatnonzero(new_place), len(vectors))).astype(np.int64)
+    return place_sizes_reference(vectors, threshold, max_distance, metric)
+
+
+def place_sizes_reference(
+    vectors: np.ndarray, threshold: float, max_distance: float = 2.0, metric: str = "l1"
+) -> np.ndarray:
+    """:func:`place_sizes` one distance call per frame (any metric; the compiled loop's oracle)."""
     sizes: list[int] = []
     representative: np.ndarray | None = None
     for vector in vectors:
