@@ -270,6 +270,14 @@ class HierarchicalPlaceMap(PlaceMap):
         )]
         held, self._held = self._held, []
         self._calibrated_on = len(frames)
+        if len({traversal for _, traversal in held}) == 1 and not self.places and self.threshold > 0:
+            # one traversal from the first frame: the grouping just made is what _assign would
+            # decide frame by frame (same rule, same distance bits; S's clipping to [0, 1] changes
+            # no comparison with nu > 0), so it is not computed again
+            starts = np.zeros(len(held), dtype=bool)
+            starts[np.cumsum(sizes)[:-1]] = True
+            starts[0] = True
+            return out + [self._assign(index, traversal, bool(new)) for (index, traversal), new in zip(held, starts)]
         return out + [self._assign(index, traversal) for index, traversal in held]
 
     def _given_threshold(self, frame: int) -> PlaceThreshold:
@@ -278,15 +286,16 @@ class HierarchicalPlaceMap(PlaceMap):
             target_frames_per_place=float("nan"), frames_per_place=float("nan"),
         )
 
-    def _assign(self, index: int, traversal: str) -> PlaceAssignment:
-        """Frame ``index`` joins the current place or starts a new one (§3.1.2)."""
+    def _assign(self, index: int, traversal: str, starts_place: bool | None = None) -> PlaceAssignment:
+        """Frame ``index`` joins the current place or starts a new one (§3.1.2); ``starts_place``:
+        that decision, already made by :func:`place_sizes` on the same frames."""
         assert self.threshold is not None
-        vector = self._vectors.view[index]  # type: ignore[union-attr]
         current = self.places[-1] if self.places else None
-        new_place = (
+        new_place = starts_place if starts_place is not None else (
             current is None
             or current.traversal != traversal
-            or self.similarity(self.distance(vector, self.representative(current.id))) < self.threshold
+            or self.similarity(self.distance(self._vectors.view[index],  # type: ignore[union-attr]
+                                             self.representative(current.id))) < self.threshold
         )
         if new_place:
             current = Place(id=len(self.places), traversal=traversal)
