@@ -178,6 +178,22 @@ def pair_rows(pairs: list[str], repeats: int) -> list[list[object]]:
     return rows
 
 
+def recipes_table(names: list[str]) -> str:
+    rows = []
+    for name in names:
+        p = profile_recipe(name)
+        print(name, round(p["whole"], 2), flush=True)
+        named = ("import", "setup", "frame_loop", "evaluation", "log_close", "report")
+        rest = p["whole"] - sum(p[k] for k in named)
+        rows.append([name, *(p[k] for k in named), rest, p["whole"], p["log_write"],
+                     f"{100 * p['evaluation'] / p['frame_loop']:.0f} %", p["whole"] / p["frame_loop"]])
+    return table(
+        ["recipe", "import s", "setup s", "frame loop s", "evaluation s", "log close s", "report s",
+         "start/exit s", "whole s", "log writing s (in the loop)", "evaluation / loop", "whole / loop"],
+        rows,
+    )
+
+
 def optimize_rows(repeats: int) -> list[list[object]]:
     """``slamfront optimize`` (default options, and ``--no-plots``) against the plain GTSAM
     script, interleaved A B C A B C ..., ratios pair by pair (wall and CPU)."""

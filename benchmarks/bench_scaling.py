@@ -233,12 +233,13 @@ def route_child(spec: str, n: int, n_queries: int, seed: int) -> None:
     import resource
     import time
 
+    from tiled_route import TILE, TiledRoute
+
     from slamfront import Frame, StageInputs
     from slamfront.core.loops import LoopGroundTruth
     from slamfront.evaluation.loops import score_loops
     from slamfront.messages import LoopResult
     from slamfront.recipe import EvalOptions, build_pipeline, load_recipe
-    from tiled_route import TILE, TiledRoute
 
     route = TiledRoute(NORDLAND, seed)
     start = int(np.random.default_rng(seed).integers(0, TILE - n_queries))  # the query stretch, in tile 0

@@ -48,29 +48,6 @@ LIBRARIES = ("numpy", "opencv-contrib-python-headless", "gtsam", "numba", "open3
 """Libraries whose versions every results file records (those installed)."""
 
 
-def merge_sections(path: Path, body: str) -> str:
-    """``body`` followed by the ``## `` sections of the existing ``path`` that ``body`` lacks
-    (in their old order), their heading marked as from an earlier run on the machine named
-    there: a run of some parts updates only what it measured."""
-    if not path.exists():
-        return body
-    old = path.read_text().rstrip()
-    last = old.rsplit("\n", 1)[-1]
-    machine_line = last if last.startswith("Machine: ") else ""
-    old = old[: len(old) - len(machine_line)].rstrip()
-    mark = " (earlier run"
-    out = body
-    for section in old.split("\n## ")[1:]:
-        heading, rest = (section.split("\n", 1) + [""])[:2]
-        if f"## {heading.split(mark)[0]}\n" in body:
-            continue
-        if mark not in heading:
-            heading += f"{mark})"
-            rest = f"\n{machine_line or 'Machine: not recorded.'} (The machine of that run.)\n{rest}"
-        out += f"\n\n## {heading}\n{rest}"
-    return out
-
-
 def cpu_model() -> str:
     """The CPU's model name, with its family and model numbers on Linux (a virtual machine may
     call every generation "AMD EPYC"); macOS: sysctl; else what ``platform`` knows."""

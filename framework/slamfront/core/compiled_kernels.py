@@ -94,19 +94,24 @@ def l1_uint8(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
             out[i, j] = acc
 
 @jit
+def l1_pair(x, y, buffer, frames, partial):  # type: ignore[no-untyped-def]
+    # float32 sum |x - y| in NumPy's pairwise order, bit for bit; buffer (p,) float32,
+    # frames (3, 64) int64 and partial (64,) float32 are the caller's scratch
+    p = x.shape[0]
+    for k in range(p):
+        buffer[k] = abs(x[k] - y[k])
+    return np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+
+
+@jit
 def l1_float32(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
     # float32 |a - b| summed in NumPy's pairwise order, bit for bit
-    p = a.shape[1]
-    buffer = np.empty(p, dtype=np.float32)
+    buffer = np.empty(a.shape[1], dtype=np.float32)
     frames = np.empty((3, 64), dtype=np.int64)
     partial = np.empty(64, dtype=np.float32)
     for i in range(lo, hi):
-        ai = a[i]
         for j in range(b.shape[0]):
-            bj = b[j]
-            for k in range(p):
-                buffer[k] = abs(ai[k] - bj[k])
-            out[i, j] = np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+            out[i, j] = l1_pair(a[i], b[j], buffer, frames, partial)
 
 @jit
 def sweep(columns, offsets, queries, out, lo, hi):  # type: ignore[no-untyped-def]
@@ -307,16 +312,11 @@ def l1_float32_bound(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
 @jit
 def l1_float32_pairs(a, b, rows, columns, out):  # type: ignore[no-untyped-def]
     # out[n] = the l1_float32 distance (NumPy's pairwise bits) of a[rows[n]] and b[columns[n]]
-    p = a.shape[1]
-    buffer = np.empty(p, dtype=np.float32)
+    buffer = np.empty(a.shape[1], dtype=np.float32)
     frames = np.empty((3, 64), dtype=np.int64)
     partial = np.empty(64, dtype=np.float32)
     for n in range(rows.shape[0]):
-        ai = a[rows[n]]
-        bj = b[columns[n]]
-        for k in range(p):
-            buffer[k] = abs(ai[k] - bj[k])
-        out[n] = np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+        out[n] = l1_pair(a[rows[n]], b[columns[n]], buffer, frames, partial)
 
 
 @jit
@@ -324,8 +324,7 @@ def greedy_places_l1(vectors, threshold, max_distance, new_place):  # type: igno
     # new_place[t] = whether frame t starts a place: 1 - D(R, g_t) / max_distance < threshold,
     # R the first vector of the current place, D float32 L1 in NumPy's pairwise bits (as
     # l1_float32), compared in float64 as Python compares the float32 distance
-    p = vectors.shape[1]
-    buffer = np.empty(p, dtype=np.float32)
+    buffer = np.empty(vectors.shape[1], dtype=np.float32)
     frames = np.empty((3, 64), dtype=np.int64)
     partial = np.empty(64, dtype=np.float32)
     representative = 0
@@ -333,11 +332,7 @@ def greedy_places_l1(vectors, threshold, max_distance, new_place):  # type: igno
         if t == 0:
             new_place[t] = True
             continue
-        r = vectors[representative]
-        g = vectors[t]
-        for k in range(p):
-            buffer[k] = abs(g[k] - r[k])
-        distance = np.float64(np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial))
+        distance = np.float64(l1_pair(vectors[t], vectors[representative], buffer, frames, partial))
         joins = 1.0 - distance / max_distance >= threshold
         new_place[t] = not joins
         if not joins:
