@@ -236,7 +236,7 @@ def route_child(spec: str, n: int, n_queries: int, seed: int) -> None:
     import resource
     import time
 
-    from tiled_route import TILE, TiledRoute
+    from tiled_route import TiledRoute
 
     from slamfront import Frame, StageInputs
     from slamfront.core.loops import LoopGroundTruth
