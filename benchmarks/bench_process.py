@@ -14,13 +14,18 @@ on the same machine under the same load:
    and sphere2500, with the relative difference of their final costs;
 3. `slamfront eval traj` against `evo_ape` (evo, same SE(3) alignment, same answer) on
    the TUM fr1 pair;
-4. `slamfront --help` against a bare interpreter start.
+4. `slamfront --help` against a bare interpreter start;
+5. recipe pairs (``--pairs nordland_hsl:nordland_seqslam``): the two whole processes
+   interleaved A B A B, the wall and CPU ratios round by round, each one's evaluation as a
+   share of its wall time, and both recalls (the answers must not change with the speed).
 
 Commands are repeated (``--repeats`` rounds after an untimed warm-up, interleaved with
 their peer); ratios are the medians of the round-by-round ratios.
 
 Run: .venv/bin/python benchmarks/bench_process.py [--recipes nordland_seqslam ...] [--repeats 5]
-     [--peers optimize other]   (``--recipes`` with no names skips the recipes)
+     [--peers optimize other] [--pairs nordland_hsl:nordland_seqslam]
+     (``--recipes`` / ``--peers`` / ``--pairs`` with no names skip that part; the sections of
+     results/process.md a run does not measure are kept as they were)
 """
 
 from __future__ import annotations
@@ -56,7 +61,8 @@ built = time.perf_counter()
 result = run_pipeline(pipeline, str(path), Path(sys.argv[2]), progress=False)
 m = result.metrics
 print(json.dumps({"import": imported - start, "setup": built - imported, **result.phase_seconds,
-                  "log_write": m.get("log_write_seconds", 0.0), "recall_at_100p": m.get("recall_at_100p")}))
+                  "log_write": m.get("log_write_seconds", 0.0), "recall_at_100p": m.get("recall_at_100p"),
+                  "timing": {k: v.get("total_s") for k, v in m.get("timing", {}).items()}}))
 """
 
 GTSAM_SCRIPT = """
@@ -134,10 +140,42 @@ def median(values: list[float]) -> float:
 
 def profile_recipe(name: str) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as out:
-        seconds, stdout = wall([sys.executable, "-c", RUN_CHILD, name, out])
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        seconds, after, stdout = timed([sys.executable, "-c", RUN_CHILD, name, out])
     phases = json.loads(stdout.strip().splitlines()[-1])
     phases["whole"] = seconds
+    phases["cpu"] = after - (before.ru_utime + before.ru_stime)
     return phases
+
+
+def pair_rows(pairs: list[str], repeats: int) -> list[list[object]]:
+    """Whole ``slamfront run`` processes of two recipes, interleaved A B A B after one
+    untimed warm-up round (which also fills numba's on-disk cache), ratios round by round."""
+    rows = []
+    for pair in pairs:
+        ours, peer = pair.split(":")
+        runs: dict[str, list[dict[str, float]]] = {ours: [], peer: []}
+        for attempt in range(repeats + 1):
+            for name in (ours, peer):
+                phases = profile_recipe(name)
+                if attempt:
+                    runs[name].append(phases)
+            print(pair, attempt, {k: round(v[-1]["whole"], 2) for k, v in runs.items() if v}, flush=True)
+        a, b = runs[ours], runs[peer]
+        share = [r["evaluation"] / r["whole"] for r in a]
+        peer_share = [r["evaluation"] / r["whole"] for r in b]
+        stages = {k: median([r["timing"].get(k) or 0.0 for r in a]) for k in a[0]["timing"]}
+        rows.append([
+            f"`run {ours}` vs `run {peer}`", median([r["whole"] for r in a]), median([r["whole"] for r in b]),
+            pair_ratios([r["whole"] for r in a], [r["whole"] for r in b]),
+            pair_ratios([r["cpu"] for r in a], [r["cpu"] for r in b]),
+            f"{100 * median(share):.0f} % [{100 * min(share):.0f}-{100 * max(share):.0f}]",
+            f"{100 * median(peer_share):.0f} %", median([r["evaluation"] for r in a]),
+            median([r["evaluation"] for r in b]),
+            ", ".join(f"{k} {v:.2f}" for k, v in stages.items()),
+            f"{a[0]['recall_at_100p']:.4f} / {b[0]['recall_at_100p']:.4f}", 0.8,
+        ])
+    return rows
 
 
 def recipes_table(names: list[str]) -> str:
@@ -222,8 +260,11 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="timed rounds per command (after one warm-up round)")
     parser.add_argument("--peers", nargs="*", choices=("optimize", "other"), default=["optimize", "other"],
                         help="which peer comparisons to run")
+    parser.add_argument("--pairs", nargs="*", default=["nordland_hsl:nordland_seqslam"],
+                        help="recipe pairs OURS:PEER whose whole processes are interleaved")
     args = parser.parse_args()
     load_before = os.getloadavg()
+    pairs = pair_rows(args.pairs, args.repeats) if args.pairs else []
     optimize = optimize_rows(args.repeats) if "optimize" in args.peers else []
     peers = peer_rows(args.repeats) if "other" in args.peers else []
     recipes = recipes_table(args.recipes) if args.recipes else ""
@@ -237,6 +278,14 @@ def main() -> None:
         f"the target; CPU ratios (user + system seconds of the child) move less with the load. Machine load "
         f"(1-min average) {load_before[0]:.1f} before, {load_after[0]:.1f} after, on {os.cpu_count()} cores, "
         f"shared with other jobs: seconds depend on the load, ratios much less.",
+        "## Recipe against recipe, whole process" if pairs else "",
+        table(["pair (A vs B)", "A whole s", "B whole s", "wall ratio A/B [range]", "CPU ratio A/B [range]",
+               "A evaluation / A wall [range]", "B evaluation / B wall", "A evaluation s", "B evaluation s",
+               "A stage seconds (median)", "R@100%P A / B", "target wall ratio"], pairs) if pairs else "",
+        "Each round runs A then B as fresh `slamfront run` processes (logging, plots and report included, as a "
+        "user runs them). *Evaluation* is every evaluation's metrics and plots after the frame loop; the "
+        "descriptor retrieval curve in it is exact (every query against every reference), its k nearest found by "
+        "a vectorised bound and re-ranked near the cut with the exact distances." if pairs else "",
         "## `slamfront optimize` against a plain GTSAM script" if optimize else "",
         table(headers, optimize) if optimize else "",
         "Peer: `gtsam.readG2o`, a gauge prior, Levenberg-Marquardt (GTSAM's defaults, 100 iterations at most), "
@@ -255,7 +304,8 @@ def main() -> None:
         "`start/exit` is the process's own start and exit (interpreter, atexit) outside the timed phases."
         if recipes else "",
     ] if part)
-    publish("process", "Whole-process profile", body, libraries=("numpy", "gtsam", "pillow", "evo"))
+    publish("process", "Whole-process profile", body, libraries=("numpy", "gtsam", "pillow", "evo", "numba"),
+            keep_sections=True)
 
 
 if __name__ == "__main__":

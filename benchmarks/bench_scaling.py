@@ -1,5 +1,20 @@
 """How each loop detector's cost grows with the map: 1k, 4k, 16k and 64k reference frames.
 
+Two studies (``--study``):
+
+**route** (default): a route of n map frames made of Nordland tiles, each with its own
+seeded photometric and geometric change (:mod:`tiled_route`), described frame by frame
+by each method's own descriptor, as a run does; n = 4k, 16k, 64k. A seeded stretch of
+``--queries`` consecutive winter frames of tile 0 (the same at every size) is then
+matched against the whole map: per-query time, the whole measured time (description +
+map + queries), the extrapolation to n + n frames, peak memory, descriptor distances,
+answers and recall at 100 % precision on those queries (a match is correct only in the
+query's own tile, within 3 frames). Queries are a sample because comparing every one of
+64k queries with 64k references (SeqSLAM) would take hours on 2 cores. Methods:
+SeqSLAM, Fast-SeqSLAM, the hierarchical detector, from their Nordland recipes.
+
+**cached** (the earlier study, below):
+
 The descriptor stream is cached, not rendered: each method's own descriptor (from its
 recipe) is computed once on the real Nordland route (3,576 summer + 3,576 winter frames),
 then tiled to the map size, every copy after the first with a little noise (+-2 grey
@@ -24,8 +39,8 @@ The growth exponent is the slope of log(per-query time) against log(n) over the 
 (1 = linear search, 0 = constant). Methods come from recipes (with ``@key=value,...``
 overrides), so any detector configuration can be added on the command line.
 
-Run: .venv/bin/python benchmarks/bench_scaling.py [--sizes 1000 4000 16000 64000] [--queries 200]
-     [--method LABEL=RECIPE[@key=value,...] ...]
+Run: .venv/bin/python benchmarks/bench_scaling.py [--study route|cached] [--sizes 4000 16000 64000]
+     [--queries 300] [--seed 0] [--method LABEL=RECIPE[@key=value,...] ...]
 """
 
 from __future__ import annotations
@@ -51,7 +66,19 @@ METHODS = {
     "seqslam_fast (HNSW)": "nordland_seqslam_fast@loop_detector.params.knn=hnsw",
     "nearest_neighbour": "nordland_hsl@place_map=null,loop_detector={plugin: nearest_neighbour}",
 }
-"""Label -> recipe[@overrides]: the methods measured by default."""
+"""Label -> recipe[@overrides]: the methods measured by default (cached study)."""
+
+ROUTE_METHODS = {
+    "hierarchical": "nordland_hsl",
+    "seqslam": "nordland_seqslam",
+    "seqslam_fast": "nordland_seqslam_fast",
+}
+"""Label -> recipe[@overrides]: the methods of the route study."""
+
+TUNED_FROM = 2900
+"""Nordland places from here on chose RST-SHelo's defaults (docs/loop_closure.md): no query comes from them."""
+
+NORDLAND = Path(os.environ.get("SLAMFRONT_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "nordland"
 
 def split_overrides(text: str) -> list[str]:
     """``a=1,b={x: 1, y: 2}`` -> ``["a=1", "b={x: 1, y: 2}"]`` (commas inside braces kept)."""
@@ -204,17 +231,183 @@ def plot(results: dict[str, dict[int, dict[str, float]]], path: Path) -> Path:
     return path
 
 
+def route_child(spec: str, n: int, n_queries: int, seed: int) -> None:
+    """One method at one map size on the tiled route; prints its measurements as JSON."""
+    import resource
+    import time
+
+    from tiled_route import TiledRoute
+
+    from slamfront import Frame, StageInputs
+    from slamfront.core.loops import LoopGroundTruth
+    from slamfront.evaluation.loops import score_loops
+    from slamfront.messages import LoopResult
+    from slamfront.recipe import EvalOptions, build_pipeline, load_recipe
+
+    route = TiledRoute(NORDLAND, seed)
+    # the query stretch, in tile 0, before place 2,900: RST-SHelo's defaults were chosen on Nordland 2,900-3,575
+    start = int(np.random.default_rng(seed).integers(0, TUNED_FROM - n_queries))
+    name, _, overrides = spec.partition("@")
+    recipe, path = load_recipe(name, split_overrides(overrides))
+    pipeline = build_pipeline(recipe, str(path))
+    stages = pipeline.stages
+    descriptor = next(s for s in stages if s.kind == "descriptor")
+    warm = descriptor.process(StageInputs(frame=Frame(index=0, timestamp=0.0, image=route.image("reference", 0))))[0]
+    warm_up(np.stack([warm.vector, warm.vector]), warm.metric)
+    reported: dict[int, LoopResult] = {}
+    spent = {"describe": 0.0, "stages": 0.0}
+
+    def keep(produced: list) -> None:  # type: ignore[type-arg]
+        for message in produced:
+            if isinstance(message, LoopResult):
+                reported[message.frame] = message
+
+    def feed(index: int, traversal: str, sequence_index: int) -> None:
+        image = route.image(traversal, sequence_index)
+        frame = Frame(index=index, timestamp=float(index), image=image, traversal=traversal,  # type: ignore[arg-type]
+                      sequence_index=sequence_index)
+        inputs = StageInputs(frame=frame, stages={})
+        began = time.perf_counter()
+        inputs.outputs["descriptor"] = list(descriptor.process(inputs))
+        described = time.perf_counter()
+        inputs.stages = {"descriptor": descriptor}
+        for stage in stages:
+            if stage is descriptor:
+                continue
+            produced = list(stage.process(inputs))
+            inputs.outputs[stage.kind] = produced
+            inputs.stages = {**inputs.stages, stage.kind: stage}
+            keep(produced)
+        spent["describe"] += described - began
+        spent["stages"] += time.perf_counter() - described
+
+    began = time.perf_counter()
+    for index in range(n):
+        feed(index, "reference", index)
+    built = time.perf_counter()
+    build = dict(spent)
+    feed(n, "query", start)  # the place map places the held map frames now; Fast-SeqSLAM builds its index
+    first = time.perf_counter()
+    first_describe = spent["describe"]
+    for k in range(1, n_queries):
+        feed(n + k, "query", start + k)
+    for stage in stages:
+        keep(list(stage.finish()))
+    done = time.perf_counter()
+    statistics: dict[str, float] = {}
+    for stage in stages:
+        statistics.update(stage.statistics())
+    queries = np.arange(n, n + n_queries)
+    truth = LoopGroundTruth.band(queries, start + np.arange(n_queries), 3, valid=(0, n - 1))
+    scores = score_loops(reported, truth, [1], EvalOptions())
+    print(json.dumps({
+        "build_s": built - began, "build_describe_s": build["describe"], "first_query_s": first - built,
+        "query_s": done - first, "query_describe_s": spent["describe"] - first_describe,
+        "answers": int(sum(1 for r in reported.values() if r.match >= 0 and r.frame >= n)),
+        "accepted": int(sum(1 for r in reported.values() if r.accepted and r.match >= 0 and r.frame >= n)),
+        "recall_at_100p": scores.metrics["recall_at_100p"], "auc_pr": scores.metrics["auc_pr"],
+        "distances": statistics.get("n_distances"),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "query_start": start,
+    }))
+
+
+def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed: int) -> str:
+    """Every method at every size on the tiled route, each in its own child process; the
+    markdown section of results/scaling.md."""
+    load = [os.getloadavg()[0]]
+    results: dict[str, dict[int, dict[str, float]]] = {}
+    for n in sizes:  # sizes outside, methods inside: the methods at one size run close in time
+        for label, spec in methods.items():
+            done = subprocess.run([sys.executable, __file__, "--route-child", spec, str(n), str(n_queries), str(seed)],
+                                  capture_output=True, text=True, check=False)
+            if done.returncode != 0:
+                raise RuntimeError(f"{label} at {n}: {done.stderr.strip()[-800:]}")
+            m = json.loads(done.stdout.strip().splitlines()[-1])
+            per_query = (m["query_s"] - m["query_describe_s"]) / (n_queries - 1)
+            whole = m["build_s"] + m["first_query_s"] + m["query_s"]
+            m.update(per_query_ms=1000 * per_query, whole_s=whole,
+                     extrapolated_s=m["build_s"] + m["first_query_s"] + m["query_s"] / (n_queries - 1) * (n - 1))
+            results.setdefault(label, {})[n] = m
+            print(f"route {label} n={n}: {m['per_query_ms']:.2f} ms/query, answers {m['answers']}, "
+                  f"R@100%P {m['recall_at_100p']:.3f}, build {m['build_s']:.1f} s, peak {m['peak_mb']:.0f} MB",
+                  flush=True)
+    load.append(os.getloadavg()[0])
+    rows = []
+    for label, by_size in results.items():
+        for n in sorted(by_size):
+            m = by_size[n]
+            versus = results.get("seqslam", {}).get(n)
+            speedup = f"{versus['per_query_ms'] / m['per_query_ms']:.1f}x" if versus else "-"
+            rows.append([label, n, m["answers"], m["accepted"], f"{m['recall_at_100p']:.3f}", m["per_query_ms"],
+                         speedup, m["build_s"], m["build_describe_s"], m["first_query_s"], m["whole_s"],
+                         m["extrapolated_s"],
+                         m["distances"] if m["distances"] is not None else "-", m["peak_mb"]])
+    start = next(iter(next(iter(results.values())).values()))["query_start"]
+    largest = max(sizes)
+    verdict = ""
+    if "hierarchical" in results and "seqslam" in results and largest in results["hierarchical"]:
+        h, q = results["hierarchical"][largest], results["seqslam"][largest]
+        verdict = (f"At n = {largest}: the hierarchical detector takes {h['per_query_ms']:.2f} ms per query against "
+                   f"SeqSLAM's {q['per_query_ms']:.1f} ms ({q['per_query_ms'] / h['per_query_ms']:.0f}x faster), "
+                   f"R@100%P {h['recall_at_100p']:.3f} against {q['recall_at_100p']:.3f}.")
+    return "\n\n".join(part for part in [
+        "## Tiled route: 4k to 64k map frames, described as a run describes them",
+        f"The map is a route of n summer frames in tiles of the Nordland route (3,576 frames each), every tile a "
+        "different stretch of railway that looks like the others: its own cyclic pan (a multiple of 4 of 64 "
+        "pixels) and mirroring, which no other tile shares, a small shift, scale and roll, and its own gain, "
+        f"gamma and offset, drawn from seed {seed} and the tile number (`benchmarks/tiled_route.py`); frames are "
+        "made and described on the fly by each method's own descriptor. "
+        f"Queries: {n_queries} consecutive winter frames of tile 0 (places {start}-{start + n_queries - 1}, the "
+        "same at every size, with tile 0's change; drawn before place 2,900, as places 2,900-3,575 chose "
+        "RST-SHelo's defaults), matched against the whole map; a match is correct only in "
+        "tile 0 within 3 frames (the other tiles look alike and grow with the map). The queries are a sample: "
+        f"all {largest:,} queries against {largest:,} references would take SeqSLAM hours on this machine.",
+        f"Load (1-min average) {load[0]:.1f} at start, {load[1]:.1f} at the end, on {os.cpu_count()} cores shared "
+        "with other jobs: compare methods at one size (run one after the other), not with other runs.",
+        table(["method", "map frames n", "answers (of the queries)", "accepted", "R@100%P (queries)",
+               "ms per query (detector)", "SeqSLAM ms / this ms", "map build s", "of it description s",
+               "first query s",
+               f"whole s (map + {n_queries} queries)", "whole s (n + n, extrapolated)",
+               f"descriptor distances ({n_queries} queries)", "peak RSS MB"], rows),
+        verdict,
+        "*ms per query* is the place map and detector per query frame after the first (answers included; "
+        "SeqSLAM answers its batch at the end), description excluded; *map build* is describing and feeding "
+        "the n map frames; *first query* is the first query frame alone, when the hierarchical place map "
+        "chooses nu over the map frames it held and places them (and, past 10,000 places, checks whether a "
+        "VP-tree would pay) and Fast-SeqSLAM builds its index: a one-time cost of the map, kept out of the "
+        "per-query time and in the whole times. *whole, extrapolated* is map build + first query + n - 1 "
+        "times the measured per-query time with description. Distances: the detectors' own count "
+        "(`n_distances`) for the queries' searches and sequences.",
+    ] if part)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sizes", type=int, nargs="+", default=[1000, 4000, 16000, 64000])
-    parser.add_argument("--queries", type=int, default=200, help="query frames timed per size (a sample of the route)")
+    parser.add_argument("--study", choices=("route", "cached"), default="route")
+    parser.add_argument("--sizes", type=int, nargs="+", default=None,
+                        help="map sizes (route: 4000 16000 64000; cached: 1000 4000 16000 64000)")
+    parser.add_argument("--queries", type=int, default=None,
+                        help="query frames timed per size (route: 300 consecutive; cached: 200)")
+    parser.add_argument("--seed", type=int, default=0, help="route study: tile changes and query stretch")
     parser.add_argument("--method", action="append", default=[], metavar="LABEL=RECIPE[@key=value,...]",
                         help="measure this method (repeatable; default: the five built-in ones)")
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    parser.add_argument("--route-child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         child(args.child[0], args.child[1], int(args.child[2]), int(args.child[3]))
         return
+    if args.route_child:
+        route_child(args.route_child[0], int(args.route_child[1]), int(args.route_child[2]), int(args.route_child[3]))
+        return
+    if args.study == "route":
+        methods = dict(m.split("=", 1) for m in args.method) if args.method else ROUTE_METHODS
+        section = route_study(methods, args.sizes or [4000, 16000, 64000], args.queries or 300, args.seed)
+        publish("scaling", "How the detectors' cost grows with the map", section, keep_sections=True)
+        return
+    args.sizes = args.sizes or [1000, 4000, 16000, 64000]
+    args.queries = args.queries or 200
     methods = dict(m.split("=", 1) for m in args.method) if args.method else METHODS
     load = [os.getloadavg()[0]]
     results: dict[str, dict[int, dict[str, float]]] = {}
@@ -246,7 +439,8 @@ def main() -> None:
     largest = max(args.sizes)
     per_query_at = {label: by_size[largest]["per_query_ms"] for label, by_size in results.items() if largest in by_size}
     fastest = min(per_query_at, key=per_query_at.get) if per_query_at else "-"
-    body = "\n\n".join([
+    body = "\n\n".join(part for part in [
+        "## Cached descriptor stream: 1k to 64k map frames",
         f"Cached descriptor stream (real Nordland descriptors of each method, tiled with noise to the map size; "
         f"no rendering, description excluded). {args.queries} consecutive query frames timed per size against the "
         f"full map. Load (1-min average) {load[0]:.1f} at start, {load[1]:.1f} at the end, on {os.cpu_count()} cores: "
@@ -254,6 +448,10 @@ def main() -> None:
         table(["method", "map frames n", "answers (of the query frames timed)", "ms per query frame", "map build s", "total s (n + n, extrapolated)",
                "peak RSS MB", "growth exponent (per query)", "growth exponent (total)"], rows),
         f"![scaling]({figure.name})",
+        "A row with 0 answers timed query frames that triggered no search (the hierarchical detector answers "
+        "once per completed sequence of places): its per-query time is not a search's; the tiled-route study "
+        "counts answers at every size." if any(m["answers"] == 0 for by in results.values() for m in by.values())
+        else "",
         f"At n = {largest}: fastest per query is {fastest}; per-query ms: "
         + ", ".join(f"{k} {v:.3g}" for k, v in per_query_at.items()) + ".",
         "The sequence-matching methods that compare each query with every reference (SeqSLAM, Fast-SeqSLAM with "
@@ -261,8 +459,8 @@ def main() -> None:
         "detector searches place representatives only once per completed query sequence, and HNSW replaces the "
         "exhaustive comparison by a graph search. Fast-SeqSLAM builds its HNSW index when the first query "
         "arrives, so that build is inside its per-query time here (divided over the timed queries).",
-    ])
-    publish("scaling", "How the detectors' cost grows with the map", body)
+    ] if part)
+    publish("scaling", "How the detectors' cost grows with the map", body, keep_sections=True)
 
 
 if __name__ == "__main__":

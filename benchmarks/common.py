@@ -91,12 +91,41 @@ def machine(libraries: Sequence[str] = LIBRARIES) -> str:
     )
 
 
-def publish(name: str, title: str, body: str, libraries: Sequence[str] = LIBRARIES) -> None:
-    """Print a result and write it to results/<name>.md, ending with :func:`machine`."""
+def publish(name: str, title: str, body: str, libraries: Sequence[str] = LIBRARIES, keep_sections: bool = False) -> None:
+    """Print a result and write it to results/<name>.md, ending with :func:`machine`.
+
+    :param keep_sections: keep the file's ``## `` sections that ``body`` does not have
+        (see :func:`merge_sections`), for benchmarks whose parts can run alone.
+    """
     RESULTS.mkdir(exist_ok=True)
+    if keep_sections:
+        body = merge_sections(RESULTS / f"{name}.md", body)
     text = f"# {title}\n\n{body.rstrip()}\n\n{machine(libraries)}\n"
     (RESULTS / f"{name}.md").write_text(text)
     print(text)
+
+
+def merge_sections(path: Path, body: str) -> str:
+    """``body`` followed by the ``## `` sections of the existing ``path`` that ``body`` lacks
+    (in their old order), their heading marked as from an earlier run on the machine named
+    there: a run of some parts updates only what it measured."""
+    if not path.exists():
+        return body
+    old = path.read_text().rstrip()
+    last = old.rsplit("\n", 1)[-1]
+    machine_line = last if last.startswith("Machine: ") else ""
+    old = old[: len(old) - len(machine_line)].rstrip()
+    mark = " (earlier run"
+    out = body
+    for section in old.split("\n## ")[1:]:
+        heading, rest = (section.split("\n", 1) + [""])[:2]
+        if f"## {heading.split(mark)[0]}\n" in body:
+            continue
+        if mark not in heading:
+            heading += f"{mark})"
+            rest = f"\n{machine_line or 'Machine: not recorded.'} (The machine of that run.)\n{rest}"
+        out += f"\n\n## {heading}\n{rest}"
+    return out
 
 
 def cpu_model() -> str:

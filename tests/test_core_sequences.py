@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamfront.core.distances import k_nearest
+from slamfront.core.distances import k_nearest, pairwise
 from slamfront.core.errors import CoreError
 from slamfront.core.loops import LoopGroundTruth
 from slamfront.core.sequences import alignment_costs, best_alignment
@@ -53,3 +53,24 @@ def test_k_nearest_is_a_stable_sort_of_all_distances() -> None:
     queries = np.array([[1.0], [4.0]], dtype=np.float32)
     assert k_nearest(queries, rows, 3, "l1").tolist() == [[2, 3, 0], [4, 1, 2]]
     assert k_nearest(queries, rows, 10, "l1").shape == (2, 5)
+
+
+@pytest.mark.parametrize(("dims", "k"), [(1152, 20), (37, 5), (3, 1), (200, 63)])
+def test_k_nearest_float32_l1_ranks_as_the_exact_distances(dims: int, k: int) -> None:
+    """float32 L1 is ranked by a vectorised kernel and re-ranked near the cut with the
+    exact (NumPy pairwise-order) distances: the answer must be the full stable sort's,
+    ties, duplicated rows and near-ties included."""
+    rng = np.random.default_rng(dims)
+    rows = rng.random((300, dims)).astype(np.float32)
+    rows /= rows.sum(axis=1, keepdims=True)
+    queries = rng.random((41, dims)).astype(np.float32)
+    queries /= queries.sum(axis=1, keepdims=True)
+    rows[7] = rows[3]  # an exact tie
+    queries[2] = rows[11]  # a distance of 0
+    queries[5] = rows[20] + np.float32(1e-7)  # near-ties
+    rows[21] = rows[20] - np.float32(1e-7)
+    want = np.argsort(pairwise(queries, rows, "l1"), axis=1, kind="stable")[:, :k]
+    assert np.array_equal(k_nearest(queries, rows, k, "l1"), want)
+    grid = rng.integers(0, 3, (60, dims)).astype(np.float32)  # many exact ties
+    want = np.argsort(pairwise(grid[:20], grid, "l1"), axis=1, kind="stable")[:, :k]
+    assert np.array_equal(k_nearest(grid[:20], grid, k, "l1"), want)

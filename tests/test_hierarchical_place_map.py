@@ -3,18 +3,23 @@ and the interface the detectors read place maps through, with the flat place map
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
 
 from slamfront import Frame, SearchablePlaceMap, StageInputs
 from slamfront.core.vptree import brute_force_knn
 from slamfront.messages import Features, PlaceAssignment
+from slamfront_plugins.descriptors.rst_shelo import RstShelo
 from slamfront_plugins.place_maps.flat import FlatPlaceMap
 from slamfront_plugins.place_maps.hierarchical import (
     HierarchicalPlaceMap,
     PlaceThreshold,
     choose_similarity_threshold,
     place_sizes,
+    place_sizes_reference,
 )
 from tests.hierarchical_helpers import route_descriptors
 
@@ -104,6 +109,24 @@ def test_choosing_nu_from_a_reference_traversal() -> None:
     nu = choose_similarity_threshold(vectors, frames_per_place=3.0)
     assert place_sizes(vectors, nu).mean() == 3.0
     assert place_sizes(vectors, 0.0).tolist() == [150]  # nu = 0: one place
+
+
+def test_compiled_place_sizes_are_the_per_frame_loop(shared_data: Path) -> None:
+    """The compiled grouping (float32 L1) makes the places one distance call per frame
+    makes, at every nu, on real RST-SHelo descriptors (Nordland summer, 600 frames) and
+    on vectors built to sit on the threshold."""
+    folder = shared_data / "nordland" / "summer"
+    describer = RstShelo()
+    vectors = np.stack([describer.describe(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE))
+                        for path in sorted(folder.glob("*.png"))[:600]])
+    for nu in (0.0, 0.5, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 1.0):
+        assert place_sizes(vectors, nu).tolist() == place_sizes_reference(vectors, nu).tolist()
+    # a distance exactly at nu (0.25 apart: S = 0.875), on both sides of the comparison
+    on_edge = np.zeros((6, 8), dtype=np.float32)
+    on_edge[:, 0] = [1.0, 0.875, 0.75, 1.0, 1.0, 0.0]
+    on_edge[:, 1] = 1.0 - on_edge[:, 0]
+    for nu in (0.875, np.nextafter(0.875, 1.0), np.nextafter(0.875, 0.0)):
+        assert place_sizes(on_edge, nu).tolist() == place_sizes_reference(on_edge, nu).tolist()
 
 
 def _nested_route(n_groups: int, seed: int = 0) -> tuple[np.ndarray, list[int], list[int]]:

@@ -15,7 +15,9 @@ from slamfront.recipe import build_pipeline, parse_recipe
 from slamfront_plugins.descriptors.rst_shelo import (
     RstShelo,
     block_histograms,
+    block_histograms_reference,
     cell_orientations,
+    cell_orientations_reference,
     edge_strength,
     kernel_for,
     preprocess,
@@ -202,3 +204,27 @@ def test_bincount_histograms_are_the_add_at_bits(cells: tuple[int, int], blocks:
         theta, weight = rng.random(cells) * np.pi, rng.random(cells) * 40
         expected = _add_at_histograms(theta, weight, blocks[1], blocks[0], bins, soft)
         assert block_histograms(theta, weight, blocks[1], blocks[0], bins, soft).tobytes() == expected.tobytes()
+        assert block_histograms_reference(theta, weight, blocks[1], blocks[0], bins, soft).tobytes() == expected.tobytes()
+
+
+def test_compiled_descriptor_is_the_numpy_reference_on_real_frames(shared_data: Path) -> None:
+    """The compiled cell sums and votes give the NumPy implementation's bits on real
+    Nordland frames (64 x 32: 2 x 2-pixel cells, both seasons), and the same descriptor
+    to float tolerance on larger images (cells of many pixels, whose sums NumPy may order
+    differently)."""
+    folder = shared_data / "nordland"
+    names = sorted(p.name for p in (folder / "summer").glob("*.png"))[::40][:60]
+    c = RstShelo.Config()
+    for season in ("summer", "winter"):
+        for name in names:
+            image = preprocess(cv2.imread(str(folder / season / name), cv2.IMREAD_GRAYSCALE), 0)
+            for gray, exact in ((image, True), (cv2.resize(image, (640, 320)), False)):
+                theta, weight = cell_orientations(gray, c.cells_x, c.cells_y)
+                want_theta, want_weight = cell_orientations_reference(gray, c.cells_x, c.cells_y)
+                got = block_histograms(theta, weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
+                want = block_histograms_reference(want_theta, want_weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
+                if exact:
+                    assert theta.tobytes() == want_theta.tobytes() and weight.tobytes() == want_weight.tobytes()
+                    assert got.tobytes() == want.tobytes()
+                else:
+                    assert np.allclose(square_root_normalise(got), square_root_normalise(want), rtol=0, atol=1e-6)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import re
+import struct
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,10 +40,12 @@ def declared_size(data: bytes, what: str) -> tuple[int, int]:
     :raises DataError: no reader understands the header, or it declares more pixels than
         the limit ``image_pixels`` allows (naming ``what`` and the size).
     """
+    size = _png_size(data)
+    if size is not None:
+        return _checked_size(size, what)
     from PIL import Image
 
     Image.init()
-    size = None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for name in Image.ID:  # as Image.open tries them, without its decompression-bomb cap
@@ -56,6 +59,24 @@ def declared_size(data: bytes, what: str) -> tuple[int, int]:
                 continue
     if size is None:
         raise DataError(f"{what}: not a readable image (no image format recognises its header)")
+    return _checked_size(size, what)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_size(data: bytes) -> tuple[int, int] | None:
+    """A PNG's ``(width, height)`` from its IHDR chunk, which the format puts first
+    (read as Pillow's PNG reader reads it, without its ~0.3 ms of format probing per
+    image); None when ``data`` does not start as a well-formed PNG (Pillow then decides)."""
+    if len(data) < 24 or data[:8] != _PNG_SIGNATURE or data[8:16] != b"\x00\x00\x00\rIHDR":
+        return None
+    width, height = struct.unpack(">II", data[16:24])
+    return (width, height) if width > 0 and height > 0 else None
+
+
+def _checked_size(size: tuple[int, int], what: str) -> tuple[int, int]:
+    """``size`` if its pixel count is within the ``image_pixels`` limit, else a DataError naming ``what``."""
     width, height = size
     problem = over_limit(
         "image_pixels", width * height, f"the pixel count of the {width}x{height} image it declares"

@@ -94,19 +94,24 @@ def l1_uint8(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
             out[i, j] = acc
 
 @jit
+def l1_pair(x, y, buffer, frames, partial):  # type: ignore[no-untyped-def]
+    # float32 sum |x - y| in NumPy's pairwise order, bit for bit; buffer (p,) float32,
+    # frames (3, 64) int64 and partial (64,) float32 are the caller's scratch
+    p = x.shape[0]
+    for k in range(p):
+        buffer[k] = abs(x[k] - y[k])
+    return np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+
+
+@jit
 def l1_float32(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
     # float32 |a - b| summed in NumPy's pairwise order, bit for bit
-    p = a.shape[1]
-    buffer = np.empty(p, dtype=np.float32)
+    buffer = np.empty(a.shape[1], dtype=np.float32)
     frames = np.empty((3, 64), dtype=np.int64)
     partial = np.empty(64, dtype=np.float32)
     for i in range(lo, hi):
-        ai = a[i]
         for j in range(b.shape[0]):
-            bj = b[j]
-            for k in range(p):
-                buffer[k] = abs(ai[k] - bj[k])
-            out[i, j] = np.float32(0.0) + pairwise_sum(buffer, 0, p, frames, partial)
+            out[i, j] = l1_pair(a[i], b[j], buffer, frames, partial)
 
 @jit
 def sweep(columns, offsets, queries, out, lo, hi):  # type: ignore[no-untyped-def]
@@ -259,3 +264,136 @@ def two_nearest_hamming(queries, rows, d1, d2, i1):  # type: ignore[no-untyped-d
         d1[i] = b1
         d2[i] = b2
         i1[i] = r1
+
+
+@numba.njit(nogil=True, cache=True, error_model="numpy", fastmath=True)
+def l1_float32_bound(a, b, out, lo, hi):  # type: ignore[no-untyped-def]
+    # out[i, j] ~ sum |a[i] - b[j]| for rows lo..hi of a, summed in whatever order the
+    # compiler vectorises (fastmath): within (p - 1) * 2**-24 * sum of the exact value,
+    # for ranking only (k_nearest re-ranks the few near the cut with l1_float32's bits).
+    # b is walked in tiles of rows that stay in cache for every row of a; four rows of a
+    # at a time share each load of b and keep four sums in flight (one sum alone waits
+    # on its own additions)
+    p = a.shape[1]
+    tile = 64
+    for start in range(0, b.shape[0], tile):
+        stop = min(start + tile, b.shape[0])
+        i = lo
+        while i + 4 <= hi:
+            a0, a1, a2, a3 = a[i], a[i + 1], a[i + 2], a[i + 3]
+            for j in range(start, stop):
+                bj = b[j]
+                s0 = np.float32(0.0)
+                s1 = np.float32(0.0)
+                s2 = np.float32(0.0)
+                s3 = np.float32(0.0)
+                for k in range(p):
+                    v = bj[k]
+                    s0 += abs(a0[k] - v)
+                    s1 += abs(a1[k] - v)
+                    s2 += abs(a2[k] - v)
+                    s3 += abs(a3[k] - v)
+                out[i, j] = s0
+                out[i + 1, j] = s1
+                out[i + 2, j] = s2
+                out[i + 3, j] = s3
+            i += 4
+        while i < hi:
+            ai = a[i]
+            for j in range(start, stop):
+                bj = b[j]
+                s = np.float32(0.0)
+                for k in range(p):
+                    s += abs(ai[k] - bj[k])
+                out[i, j] = s
+            i += 1
+
+
+@jit
+def l1_float32_pairs(a, b, rows, columns, out):  # type: ignore[no-untyped-def]
+    # out[n] = the l1_float32 distance (NumPy's pairwise bits) of a[rows[n]] and b[columns[n]]
+    buffer = np.empty(a.shape[1], dtype=np.float32)
+    frames = np.empty((3, 64), dtype=np.int64)
+    partial = np.empty(64, dtype=np.float32)
+    for n in range(rows.shape[0]):
+        out[n] = l1_pair(a[rows[n]], b[columns[n]], buffer, frames, partial)
+
+
+@jit
+def greedy_places_l1(vectors, threshold, max_distance, new_place):  # type: ignore[no-untyped-def]
+    # new_place[t] = whether frame t starts a place: 1 - D(R, g_t) / max_distance < threshold,
+    # R the first vector of the current place, D float32 L1 in NumPy's pairwise bits (as
+    # l1_float32), compared in float64 as Python compares the float32 distance
+    buffer = np.empty(vectors.shape[1], dtype=np.float32)
+    frames = np.empty((3, 64), dtype=np.int64)
+    partial = np.empty(64, dtype=np.float32)
+    representative = 0
+    for t in range(vectors.shape[0]):
+        if t == 0:
+            new_place[t] = True
+            continue
+        distance = np.float64(l1_pair(vectors[t], vectors[representative], buffer, frames, partial))
+        joins = 1.0 - distance / max_distance >= threshold
+        new_place[t] = not joins
+        if not joins:
+            representative = t
+
+
+@jit
+def cell_sums(gx, gy, xs, ys, along, across, magnitude):  # type: ignore[no-untyped-def]
+    # RST-SHelo's per-cell sums of 2 gx gy, gx^2 - gy^2 and sqrt(gx^2 + gy^2): each term in
+    # float32 (as NumPy computes them from float32 gradients), then widened to float64 and
+    # added down each column of the cell, then across the cell's columns, one after the
+    # other, as two np.add.reduceat calls (rows, then columns) add them
+    cells_y = ys.shape[0] - 1
+    cells_x = xs.shape[0] - 1
+    for cy in range(cells_y):
+        for cx in range(cells_x):
+            cell_along = 0.0
+            cell_across = 0.0
+            cell_magnitude = 0.0
+            for c in range(xs[cx], xs[cx + 1]):
+                column_along = 0.0
+                column_across = 0.0
+                column_magnitude = 0.0
+                for r in range(ys[cy], ys[cy + 1]):
+                    x = gx[r, c]
+                    y = gy[r, c]
+                    a = np.float64(np.float32(np.float32(2.0) * x) * y)
+                    b = np.float64(np.float32(x * x) - np.float32(y * y))
+                    m = np.float64(np.sqrt(np.float32(x * x) + np.float32(y * y)))
+                    if r == ys[cy]:
+                        column_along, column_across, column_magnitude = a, b, m
+                    else:
+                        column_along += a
+                        column_across += b
+                        column_magnitude += m
+                if c == xs[cx]:
+                    cell_along, cell_across, cell_magnitude = column_along, column_across, column_magnitude
+                else:
+                    cell_along += column_along
+                    cell_across += column_across
+                    cell_magnitude += column_magnitude
+            along[cy, cx] = cell_along
+            across[cy, cx] = cell_across
+            magnitude[cy, cx] = cell_magnitude
+
+
+@jit
+def soft_votes(theta, weight, blocks, row_weights, col_weights, bin_steps, bins, histogram):  # type: ignore[no-untyped-def]
+    # RST-SHelo's soft votes: every cell's vote split over 2 block rows x 2 block columns x
+    # 2 orientation bins, added to the flat padded histogram corner by corner, cell by cell
+    # (the order of block_histograms' np.bincount), with its arithmetic term for term
+    corners, cells_y, cells_x = blocks.shape
+    histogram[:] = 0.0
+    for corner in range(corners):
+        for cy in range(cells_y):
+            for cx in range(cells_x):
+                position = theta[cy, cx] / np.pi * bins - 0.5
+                low = np.floor(position)
+                fraction = position - low
+                step = bin_steps[corner, cy, cx]
+                share = fraction if step == 1 else 1 - fraction
+                target = blocks[corner, cy, cx] + (np.int64(low) + step) % bins
+                vote = weight[cy, cx] * row_weights[corner, cy, cx] * col_weights[corner, cy, cx] * share
+                histogram[target] += vote

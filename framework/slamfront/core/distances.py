@@ -166,10 +166,48 @@ def k_nearest(queries: np.ndarray, rows: np.ndarray, k: int, metric: Metric) -> 
     k = min(k, len(rows))
     chunk = max(1, (1 << 24) // max(1, len(rows)))
     out = np.empty((len(queries), k), dtype=np.int64)
+    bounded = metric == "l1" and queries.dtype == rows.dtype == np.float32 and 0 < k < len(rows)
     for start in range(0, len(queries), chunk):
-        block = pairwise(queries[start : start + chunk], rows, metric)
-        out[start : start + chunk] = smallest(block, k)
+        if bounded:
+            out[start : start + chunk] = _k_nearest_l1_float32(queries[start : start + chunk], rows, k)
+        else:
+            out[start : start + chunk] = smallest(pairwise(queries[start : start + chunk], rows, metric), k)
     return out
+
+
+_UNIT_ROUNDOFF = 2.0**-24
+"""float32's unit roundoff: a sum of p non-negative float32 terms, in any order, is within
+(p - 1) times it (relative to the sum) of the exact sum of those terms."""
+
+
+def _k_nearest_l1_float32(queries: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+    """:func:`k_nearest` for float32 L1, the same answer as ranking :func:`pairwise`'s bits.
+
+    :func:`pairwise` sums every distance in NumPy's pairwise order (so that a distance has
+    the same bits wherever it is computed), which keeps the compiler from vectorising it.
+    Ranking only needs that order near the cut: all distances are computed first by a
+    vectorised kernel whose sums may differ from those bits by at most
+    ``e = 2 (p - 1) u S`` (``u`` = 2**-24, ``S`` the distance); every row that can be among
+    the ``k`` nearest has a bounded distance within ``2 e`` of the k-th bounded one, and only
+    those few are recomputed with :func:`pairwise`'s bits and ranked (stable, ties by row
+    index), as :func:`smallest` ranks the whole matrix.
+    """
+    kernels = compiled()
+    queries, rows = np.ascontiguousarray(queries), np.ascontiguousarray(rows)
+    n, p = len(queries), rows.shape[1]
+    bounded = np.empty((n, len(rows)), dtype=np.float32)
+    threads = threads_for(float(n) * rows.shape[0] * p)
+    run_chunks(lambda lo, hi: kernels.l1_float32_bound(queries, rows, bounded, lo, hi), n, threads)
+    kth = np.partition(bounded, k - 1, axis=1)[:, k - 1].astype(np.float64)
+    # 2 e on each side, e taken at the largest sum a kept row can have, with 10 % to spare
+    margin = 4.4 * p * _UNIT_ROUNDOFF * kth + np.finfo(np.float32).tiny
+    query_of, row_of = np.nonzero(bounded <= (kth + margin)[:, None])
+    exact = np.empty(len(query_of), dtype=np.float32)
+    kernels.l1_float32_pairs(queries, rows, query_of, row_of, exact)
+    order = np.lexsort((row_of, exact, query_of))  # by query, then distance, then row index
+    firsts = np.searchsorted(query_of[order], np.arange(n))
+    picked = firsts[:, None] + np.arange(k)[None, :]
+    return row_of[order][picked]
 
 
 def nearest_two(

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import Metric, smallest, to_one
+from slamfront.core.distances import Metric, k_nearest, smallest, to_one
 from slamfront.core.errors import CoreError
 
 _SLACK = 1e-5
@@ -273,9 +273,18 @@ def _row_distances(metric: Metric):  # type: ignore[no-untyped-def]
 def brute_force_knn(
     query: np.ndarray, rows: np.ndarray, k: int, metric: Metric = "l1", lo: int = 0, hi: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The reference answer :meth:`VPTree.knn` must equal: all distances, stably ranked."""
+    """The reference answer :meth:`VPTree.knn` must equal: all distances, stably ranked.
+
+    float32 L1 ranks through :func:`k_nearest` (a vectorised bound, re-ranked near the cut
+    with the exact distances: the same order) and computes the exact distances of the k
+    chosen only; they are the bits :func:`to_one` gives for those rows.
+    """
     hi = len(rows) - 1 if hi is None else min(hi, len(rows) - 1)
-    distances = to_one(query, rows[lo : hi + 1], metric)
+    window = rows[lo : hi + 1]
+    if metric == "l1" and query.dtype == window.dtype == np.float32 and 0 < k < len(window):
+        order = k_nearest(query, window, k, metric)[0]
+        return (order + lo).astype(np.int64), to_one(query, window[order], metric).astype(np.float32)
+    distances = to_one(query, window, metric)
     order = smallest(distances, k)
     return (order + lo).astype(np.int64), distances[order].astype(np.float32)
 

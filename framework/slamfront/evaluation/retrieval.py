@@ -5,6 +5,11 @@ It measures the descriptor alone, before any place map or sequence logic: Rodrig
 uses it to show that its preprocessing retrieves more correct images. Every run with a
 global descriptor and a paired source reports it; ``slamfront retrieval`` overlays the
 curves of several descriptor settings (with and without preprocessing, say).
+
+The curve is exact: every query against every reference, through the framework's
+distance engine (:func:`slamfront.core.distances.k_nearest`, which for float32 L1 ranks
+with a vectorised bound and re-ranks the few rows near the cut with the exact distances,
+so the neighbours are those of the full distance matrix, ties included).
 """
 
 from __future__ import annotations
@@ -18,7 +23,8 @@ from slamfront.messages import Features, FrameInfo, Message
 from slamfront.report import plots
 
 MAX_PAIRS = 200_000_000
-"""Above this many query x reference pairs the brute-force curve is skipped (it would take minutes)."""
+"""Above this many query x reference pairs the brute-force curve is skipped (it would take
+tens of seconds to minutes: 3,576 x 3,576 RST-SHelo pairs take about 1 s)."""
 
 
 def retrieval_curve(

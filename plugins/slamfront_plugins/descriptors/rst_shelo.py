@@ -51,6 +51,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from slamfront import DataError, Descriptor, PluginConfig, StageInputs
+from slamfront.core.kernels import compiled
 from slamfront.lazy import lazy_module
 from slamfront.messages import Features
 
@@ -101,8 +102,20 @@ def cell_orientations(
     if width < cells_x or height < cells_y:
         raise ValueError(f"a {width}x{height} image cannot be split into {cells_x}x{cells_y} cells")
     gx, gy = _sobel(gray)
-    xs = np.linspace(0, width, cells_x + 1).round().astype(int)
-    ys = np.linspace(0, height, cells_y + 1).round().astype(int)
+    xs, ys, area = _cell_edges(height, width, cells_y, cells_x)
+    along, across, magnitude = (np.empty((cells_y, cells_x)) for _ in range(3))
+    compiled().cell_sums(gx, gy, xs, ys, along, across, magnitude)
+    theta = np.mod(0.5 * np.arctan2(along, across), np.pi)
+    return theta, magnitude / area
+
+
+def cell_orientations_reference(
+    gray: np.ndarray, cells_x: int, cells_y: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cell_orientations` in plain NumPy (what the compiled cell sums reproduce; tests compare the two)."""
+    height, width = gray.shape
+    gx, gy = _sobel(gray)
+    xs, ys, area = _cell_edges(height, width, cells_y, cells_x)
 
     def per_cell(values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.add.reduceat(values.astype(np.float64), ys[:-1], axis=0), xs[:-1], axis=1)
@@ -110,9 +123,19 @@ def cell_orientations(
     along = per_cell(2.0 * gx * gy)
     across = per_cell(gx * gx - gy * gy)
     magnitude = per_cell(np.sqrt(gx * gx + gy * gy))
-    area = np.outer(np.diff(ys), np.diff(xs))
     theta = np.mod(0.5 * np.arctan2(along, across), np.pi)
     return theta, magnitude / area
+
+
+@functools.lru_cache(maxsize=16)
+def _cell_edges(height: int, width: int, cells_y: int, cells_x: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel edges of the cells across (``cells_x + 1``) and down (``cells_y + 1``), and each cell's area."""
+    xs = np.linspace(0, width, cells_x + 1).round().astype(np.int64)
+    ys = np.linspace(0, height, cells_y + 1).round().astype(np.int64)
+    area = np.outer(np.diff(ys), np.diff(xs))
+    for array in (xs, ys, area):
+        array.flags.writeable = False
+    return xs, ys, area
 
 
 @functools.lru_cache(maxsize=16)
@@ -157,6 +180,20 @@ def block_histograms(
     corner, then cell) in which they are added, so the sums are the same bits as
     adding them one corner at a time.
     """
+    cells_y, cells_x = theta.shape
+    blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
+    blocks, row_weights, col_weights, bin_steps = _block_geometry(cells_y, cells_x, block_y, block_x, bins, spatial_soft)
+    size = (blocks_y + 2) * (blocks_x + 2) * bins
+    padded = np.empty(size)
+    compiled().soft_votes(np.ascontiguousarray(theta, dtype=np.float64), np.ascontiguousarray(weight, dtype=np.float64),
+                          blocks, row_weights, col_weights, bin_steps, bins, padded)
+    return padded.reshape(blocks_y + 2, blocks_x + 2, bins)[1:-1, 1:-1]
+
+
+def block_histograms_reference(
+    theta: np.ndarray, weight: np.ndarray, block_x: int, block_y: int, bins: int, spatial_soft: bool
+) -> np.ndarray:
+    """:func:`block_histograms` in plain NumPy (what the compiled votes reproduce; tests compare the two)."""
     cells_y, cells_x = theta.shape
     blocks_y, blocks_x = cells_y // block_y, cells_x // block_x
     blocks, row_weights, col_weights, bin_steps = _block_geometry(cells_y, cells_x, block_y, block_x, bins, spatial_soft)

@@ -39,6 +39,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
@@ -222,7 +223,10 @@ class HierarchicalSequence(PlaceSequenceDetector):
         c = self.config
         self._order: list[int] = []  # query frames by query position
         self._position: dict[int, int] = {}
-        self._informative: list[bool] = []
+        self._informative = GrowingRows(1, dtype=bool)  # per query position: not featureless
+        # per map-frame position: not featureless; grown as the map grows (map frames only
+        # ever append), so an iteration reads it without gathering the whole map again
+        self._map_informative = GrowingRows(1, dtype=bool)
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
         # the cache keeps 4 windows of query positions: memory only (8 gives the same answers and distances)
         self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames)
@@ -236,7 +240,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
     def _seen(self, frame: int) -> None:
         self._position[frame] = len(self._order)
         self._order.append(frame)
-        self._informative.append(bool(self.place_map.informative([frame])[0]))
+        self._informative.append(self.place_map.informative([frame]))
 
     def _pair_distances(self, positions: np.ndarray, map_positions: np.ndarray) -> np.ndarray:
         pm = self.place_map
@@ -258,7 +262,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         hits = self._search(places[-1], 0, usable)
         offsets = pm.place_offsets()
         n_map = int(offsets[usable])
-        map_informative = pm.informative(pm.map_frames_at(np.arange(n_map)))
+        map_informative = self._map_informative_upto(n_map)
         positions = np.asarray([self._position[f] for f in frames], dtype=np.int64)
         end = int(positions[-1])
         start = max(0, end - max(c.sequence_frames, len(frames)) + 1)
@@ -317,8 +321,19 @@ class HierarchicalSequence(PlaceSequenceDetector):
     def _informative_rows(self, positions: Iterable[int] | np.ndarray) -> np.ndarray:
         """(n,) int64: the query positions among ``positions`` whose frame is not featureless
         (the rows a sequence is compared over), in the given order."""
-        return np.asarray([t for t in np.asarray(positions, dtype=np.int64).tolist() if self._informative[t]],
-                          dtype=np.int64)
+        positions = np.asarray(positions if isinstance(positions, np.ndarray) else list(positions), dtype=np.int64)
+        return np.ascontiguousarray(positions[self._informative.view[positions, 0]], dtype=np.int64)
+
+    def _map_informative_upto(self, n_map: int) -> np.ndarray:
+        """(n_map,) bool per map-frame position: not featureless. Records keep it: a view is
+        safe, as entries below ``n_map`` are never written again (a reallocation leaves
+        the old buffer to the views that hold it)."""
+        known = len(self._map_informative)
+        if n_map > known:
+            pm = self.place_map
+            for flag in pm.informative(pm.map_frames_at(np.arange(known, n_map))):
+                self._map_informative.append(np.array([flag]))
+        return self._map_informative.view[:n_map, 0]
 
     # --- level 3 --------------------------------------------------------------------------
 
@@ -387,7 +402,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             speed=placement.speed, confidence=confidence, line_uniqueness=local,
         )]
         for k, frame in enumerate(record.frames.tolist()):
-            if not self._informative[int(record.positions[k])]:
+            if not self._informative.view[int(record.positions[k]), 0]:
                 out.append(self._featureless(frame))
             elif not 0 <= paired[k] < record.n_map:
                 self._count("outside_map")

@@ -44,6 +44,7 @@ from pydantic import Field, model_validator
 from slamfront import PlaceMap, Plugin, PluginConfig, PluginError, StageInputs
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import to_one
+from slamfront.core.kernels import compiled
 from slamfront.core.vptree import VPTREE_MIN_PLACES, VPTree, brute_force_knn, vptree_pays
 from slamfront.frame import Traversal
 from slamfront.messages import Message, PlaceAssignment
@@ -55,8 +56,21 @@ def place_sizes(vectors: np.ndarray, threshold: float, max_distance: float = 2.0
 
     The same rule as :class:`HierarchicalPlaceMap` (a frame joins the last place while
     ``1 - D(R(P_l), g_t) / max_distance >= nu``), without building a map: used to choose
-    nu from a reference traversal alone.
+    nu from a reference traversal alone. float32 L1 (RST-SHelo) runs as one compiled loop
+    whose distances have the bits of :func:`slamfront.core.distances.to_one`; other
+    metrics and dtypes run :func:`place_sizes_reference`.
     """
+    if metric == "l1" and vectors.dtype == np.float32 and len(vectors):
+        new_place = np.empty(len(vectors), dtype=np.bool_)
+        compiled().greedy_places_l1(np.ascontiguousarray(vectors), float(threshold), float(max_distance), new_place)
+        return np.diff(np.append(np.flatnonzero(new_place), len(vectors))).astype(np.int64)
+    return place_sizes_reference(vectors, threshold, max_distance, metric)
+
+
+def place_sizes_reference(
+    vectors: np.ndarray, threshold: float, max_distance: float = 2.0, metric: str = "l1"
+) -> np.ndarray:
+    """:func:`place_sizes` one distance call per frame (any metric; the compiled loop's oracle)."""
     sizes: list[int] = []
     representative: np.ndarray | None = None
     for vector in vectors:
@@ -256,6 +270,14 @@ class HierarchicalPlaceMap(PlaceMap):
         )]
         held, self._held = self._held, []
         self._calibrated_on = len(frames)
+        if len({traversal for _, traversal in held}) == 1 and not self.places and self.threshold > 0:
+            # one traversal from the first frame: the grouping just made is what _assign would
+            # decide frame by frame (same rule, same distance bits; S's clipping to [0, 1] changes
+            # no comparison with nu > 0), so it is not computed again
+            starts = np.zeros(len(held), dtype=bool)
+            starts[np.cumsum(sizes)[:-1]] = True
+            starts[0] = True
+            return out + [self._assign(index, traversal, bool(new)) for (index, traversal), new in zip(held, starts)]
         return out + [self._assign(index, traversal) for index, traversal in held]
 
     def _given_threshold(self, frame: int) -> PlaceThreshold:
@@ -264,15 +286,16 @@ class HierarchicalPlaceMap(PlaceMap):
             target_frames_per_place=float("nan"), frames_per_place=float("nan"),
         )
 
-    def _assign(self, index: int, traversal: str) -> PlaceAssignment:
-        """Frame ``index`` joins the current place or starts a new one (§3.1.2)."""
+    def _assign(self, index: int, traversal: str, starts_place: bool | None = None) -> PlaceAssignment:
+        """Frame ``index`` joins the current place or starts a new one (§3.1.2); ``starts_place``:
+        that decision, already made by :func:`place_sizes` on the same frames."""
         assert self.threshold is not None
-        vector = self._vectors.view[index]  # type: ignore[union-attr]
         current = self.places[-1] if self.places else None
-        new_place = (
+        new_place = starts_place if starts_place is not None else (
             current is None
             or current.traversal != traversal
-            or self.similarity(self.distance(vector, self.representative(current.id))) < self.threshold
+            or self.similarity(self.distance(self._vectors.view[index],  # type: ignore[union-attr]
+                                             self.representative(current.id))) < self.threshold
         )
         if new_place:
             current = Place(id=len(self.places), traversal=traversal)

@@ -264,15 +264,23 @@ class PairedTraversals(Source):
         return self.loop_ground_truth_at(self.config.tolerance)
 
     def loop_ground_truth_at(self, tolerance: int) -> LoopGroundTruth:
-        references, queries, query_places = self.plan
-        n = len(references)
-        return LoopGroundTruth.from_places(
-            queries=np.arange(n, n + len(queries)),
-            query_places=query_places,
-            frames=np.arange(n),
-            frame_places=np.array([item.place for item in references], dtype=np.float64),
-            tolerance=tolerance,
-        )
+        # each evaluation asks for it (and for every extra tolerance): built once per tolerance
+        if tolerance not in self._truths:
+            references, queries, query_places = self.plan
+            n = len(references)
+            self._truths[tolerance] = LoopGroundTruth.from_places(
+                queries=np.arange(n, n + len(queries)),
+                query_places=query_places,
+                frames=np.arange(n),
+                frame_places=np.array([item.place for item in references], dtype=np.float64),
+                tolerance=tolerance,
+            )
+        return self._truths[tolerance]
+
+    @cached_property
+    def _truths(self) -> dict[int, LoopGroundTruth]:
+        """Ground truths built so far, by tolerance (the plan never changes once made)."""
+        return {}
 
 
 def _fit(image: np.ndarray, width: int, height: int, grey: bool) -> np.ndarray:
