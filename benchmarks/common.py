@@ -126,16 +126,3 @@ def merge_sections(path: Path, body: str) -> str:
             rest = f"\n{machine_line or 'Machine: not recorded.'} (The machine of that run.)\n{rest}"
         out += f"\n\n## {heading}\n{rest}"
     return out
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), for the header of a table of measurements."""
-    import platform
-
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
