@@ -42,6 +42,7 @@ from pydantic import Field, model_validator
 from slamfront.core.distances import rowwise
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
+    Cone,
     PairDistances,
     Trajectory,
     compare_candidates,
@@ -83,7 +84,10 @@ class SequenceDecision(Message):
     track: bool = False
     """The best candidate was the track (the last answer, continued)."""
     speed: float = float("nan")
-    """Speed of the line answered along (map frames per query frame)."""
+    """Speed of the line answered along (map frames per query frame; negative: the query runs
+    the map backwards)."""
+    direction: str = ""
+    """forward or reverse: the direction the answered line runs through the map."""
     confidence: float = float("nan")
     line_uniqueness: float = float("nan")
     """How much better the answered line fits than itself moved by ``anchor_slack + 1 ..
@@ -157,8 +161,33 @@ class HierarchicalSequence(PlaceSequenceDetector):
         sequence_frames: int = Field(
             40, ge=2, description=f"query frames compared per candidate, at least Q's ({HELD_OUT})"
         )
-        vmin: float = Field(0.8, gt=0, description=f"slowest trajectory, map frames per query frame ({HELD_OUT})")
-        vmax: float = Field(1.25, gt=0, description=f"fastest trajectory ({HELD_OUT})")
+        speed_search: Literal["cone", "lines"] = Field(
+            "cone", description="cone: lines at any speed cone_low..cone_high, and backwards (reverse), searched "
+            "coarse to fine (a query need not run at the map's pace or direction); lines: every line at vmin..vmax "
+            "(the query runs the map forwards at nearly its pace)"
+        )
+        cone_low: float = Field(0.4, gt=0, description="speed_search cone: slowest line, map frames per query frame")
+        cone_high: float = Field(2.5, gt=0, description="speed_search cone: fastest line")
+        reverse: bool = Field(True, description="speed_search cone: lines running the map backwards too")
+        cone_first: int = Field(
+            8, ge=2, description="speed_search cone: query frames of the coarse stage (doubled per stage)"
+        )
+        cone_keep: int = Field(4, ge=1, description="speed_search cone: lines kept from one stage to the next")
+        cone_settle: int = Field(
+            3, ge=0, description="speed_search cone: after this many consistent answers in a row, the cone narrows "
+            "to the speed and direction they settled on (their median speed divided and multiplied by "
+            "cone_margin), until an answer is inconsistent; 0: never (designed on Nordland 2900-3499)"
+        )
+        cone_margin: float = Field(1.5, gt=1, description="speed_search cone: how far around the settled speed "
+                                   "the narrowed cone reaches (a factor)")
+        cone_after: int = Field(
+            2, ge=0, description="speed_search cone: the whole cone is searched after this many inconsistent "
+            "answers in a row (and before the first run settles); otherwise lines at vmin..vmax, or around the "
+            "settled speed (designed on Nordland 2900-3499)"
+        )
+        vmin: float = Field(0.8, gt=0, description=f"speed_search lines: slowest trajectory, map frames per query "
+                            f"frame ({HELD_OUT})")
+        vmax: float = Field(1.25, gt=0, description=f"speed_search lines: fastest trajectory ({HELD_OUT})")
         anchor_slack: int = Field(
             2, ge=0, description=f"map frames either side of an anchor tried: a place spans frames ({HELD_OUT})"
         )
@@ -215,6 +244,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         def _speeds(self) -> HierarchicalSequence.Config:
             if self.vmin > self.vmax:
                 raise ValueError("vmin must not exceed vmax")
+            if self.cone_low > self.cone_high:
+                raise ValueError("cone_low must not exceed cone_high")
             return self
 
     def __init__(self, config: Config | None = None) -> None:
@@ -224,6 +255,11 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._position: dict[int, int] = {}
         self._informative: list[bool] = []
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
+        self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
+                          c.cone_keep) if c.speed_search == "cone" else None
+        self._run_speeds: list[float] = []  # speeds answered along in the current run of consistent sequences
+        self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
+        self._wide = True  # searching the whole cone until a run settles
         # the cache keeps 4 windows of query positions: memory only (8 gives the same answers and distances)
         self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames)
         self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
@@ -265,12 +301,17 @@ class HierarchicalSequence(PlaceSequenceDetector):
         rows = self._informative_rows(range(start, end + 1))
         anchor = self._position[self._frames[places[-1]][0]]
         anchors = [(anchor, int(offsets[h]), int(h)) for h in hits]
+        # going backwards, the query place's first frame is paired with the map place's last
+        reverse_anchors = [int(offsets[h + 1]) - 1 for h in hits]
         if self._track is not None and c.track:
             track, at = self._track
             anchors.append((at, int(track.at(at)), -1))
+            reverse_anchors.append(int(track.at(at)))
+        velocities, cone = self._search_speeds()
         trajectories = compare_candidates(
-            self._pairs, anchors, rows, n_map, map_informative, velocities=self._speeds, slack=c.anchor_slack,
-            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=self._speeds,
+            self._pairs, anchors, rows, n_map, map_informative, velocities=velocities, slack=c.anchor_slack,
+            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=velocities, cone=cone,
+            reverse_anchors=reverse_anchors,
         )
         if not trajectories:
             self._count("no_candidate")
@@ -286,6 +327,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
         self._run = [*self._run, confidence] if consistent else [confidence]
+        self._run_speeds = [*self._run_speeds, best.speed] if consistent else [best.speed]
+        self._lost = 0 if consistent else self._lost + 1
         record = _Answer(number, places, frames, positions, trajectories, confidence,
                          float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative,
                          int(rows[0]) if len(rows) else start)
@@ -294,9 +337,39 @@ class HierarchicalSequence(PlaceSequenceDetector):
                                  (min(record.window_start, int(positions[0])), end))
         return self._settle(record)
 
+    def _search_speeds(self) -> tuple[np.ndarray, Cone | None]:
+        """The lines searched now (``speed_search: cone``), calibrated from the answers so far:
+
+        - once more than ``cone_settle`` answers in a row were consistent, every line at the
+          speeds around the one they settled on (their median divided and multiplied by
+          ``cone_margin``), in their direction;
+        - after ``cone_after`` inconsistent answers in a row (and at the start), the whole
+          cone, coarse to fine (the query does not run as the map), until a run settles;
+        - otherwise every line at ``vmin..vmax`` (the map's pace: the prior).
+
+        A wide cone lets wrong candidates fit nearly as well as the right one, which costs
+        the uniqueness confidence; so it is searched only while the answers say the prior
+        does not hold. Returns (speeds of the lines, None) or (unused, the cone)."""
+        c = self.config
+        if self._cone is None:
+            return self._speeds, None
+        if c.cone_settle and len(self._run_speeds) > c.cone_settle:
+            self._wide = False
+            settled = float(np.median(self._run_speeds[-2 * c.cone_settle:]))
+            low = min(max(abs(settled) / c.cone_margin, c.cone_low), c.cone_high)
+            high = max(min(abs(settled) * c.cone_margin, c.cone_high), low)
+            return (1.0 if settled >= 0 else -1.0) * speeds(low, high, c.sequence_frames), None
+        if self._lost >= c.cone_after:
+            self._wide = True
+        if self._wide:  # until a run found in the whole cone settles
+            return self._speeds, self._cone
+        return self._speeds, None
+
     def _flush(self) -> list[Message]:
         """An iteration without candidates: what waited can no longer be validated by it."""
         self._run = []
+        self._run_speeds = []
+        self._lost += 1
         return self._settle(None)
 
     def _end(self) -> list[Message]:
@@ -384,7 +457,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
                                   dtype=np.int64).reshape(-1, 2),
             candidate_costs=np.asarray([t.cost for t, _ in record.trajectories], dtype=np.float64),
             branch=branch, first=int(paired[0]), last=int(paired[-1]), cost=best.cost, track=source < 0,
-            speed=placement.speed, confidence=confidence, line_uniqueness=local,
+            speed=placement.speed, direction="reverse" if placement.speed < 0 else "forward",
+            confidence=confidence, line_uniqueness=local,
         )]
         for k, frame in enumerate(record.frames.tolist()):
             if not self._informative[int(record.positions[k])]:
