@@ -404,6 +404,7 @@ def realign(
     slack: int,
     n_map: int,
     map_informative: np.ndarray,
+    pace: bool = True,
 ) -> Trajectory:
     """Level 3 (eq. 3.10 on Q's frames): Q's informative query positions ``rows`` slid along
     the ``chosen`` trajectories and, as the thesis's template matching, at speed 1 through
@@ -412,7 +413,9 @@ def realign(
 
     A placement may leave the map (the route goes on past the map's end, or past a
     stretch the map holds elsewhere) as long as at least half of the rows stay inside, as
-    in level 2; it is scored on those, by level 2's rule (the line alone, no slack)."""
+    in level 2; it is scored on those, by level 2's rule (the line alone, no slack).
+    ``pace: False`` slides Q at each chosen trajectory's own speed instead of speed 1 (a
+    query that need not run at the map's pace)."""
     if not len(rows):
         return chosen[0]
     middle = int(rows[len(rows) // 2])
@@ -420,8 +423,9 @@ def realign(
     for trajectory in dict.fromkeys(chosen):
         placements.append(trajectory)
         for shift in range(-slack, slack + 1):
-            placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift,
-                                         math.copysign(1.0, trajectory.speed), trajectory.rows))
+            speed = math.copysign(1.0, trajectory.speed) if pace else trajectory.speed
+            placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift, speed,
+                                         trajectory.rows))
             if shift:
                 placements.append(Trajectory(trajectory.cost, trajectory.anchor_query,
                                              trajectory.anchor_map + shift, trajectory.speed, trajectory.rows))

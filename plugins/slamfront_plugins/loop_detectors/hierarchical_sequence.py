@@ -143,7 +143,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
     """
 
     name = "hierarchical_sequence"
-    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map")
+    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map",
+                   "stationary")
 
     class Config(PlaceSequenceConfig):
         """Where each default comes from, and what changing it does on data it was not chosen on:
@@ -180,6 +181,12 @@ class HierarchicalSequence(PlaceSequenceDetector):
         )
         cone_margin: float = Field(1.5, gt=1, description="speed_search cone: how far around the settled speed "
                                    "the narrowed cone reaches (a factor)")
+        stationary: float = Field(
+            0.02, ge=0, description="a query frame closer to the previous one than this times the median distance "
+            "between consecutive map frames is taken as not moved (a stop, or a slower pass than the map's "
+            "frame rate): it is paired where the previous one is; 0: every frame moves (designed on Nordland "
+            "2900-3499)"
+        )
         cone_after: int = Field(
             2, ge=0, description="speed_search cone: the whole cone is searched after this many inconsistent "
             "answers in a row (and before the first run settles); otherwise lines at vmin..vmax, or around the "
@@ -257,6 +264,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
         self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
                           c.cone_keep) if c.speed_search == "cone" else None
+        self._stationary_limit: float | None = None  # calibrated at the first query frame
         self._run_speeds: list[float] = []  # speeds answered along in the current run of consistent sequences
         self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
         self._wide = True  # searching the whole cone until a run settles
@@ -270,9 +278,32 @@ class HierarchicalSequence(PlaceSequenceDetector):
             UNIQUENESS_ACCEPT if c.confidence == "uniqueness" else DISTANCE_ACCEPT)
 
     def _seen(self, frame: int) -> None:
+        if self._order and self._stationary(frame):  # not moved: it shares the previous frame's position
+            self._position[frame] = len(self._order) - 1
+            self._count("stationary")
+            return
         self._position[frame] = len(self._order)
         self._order.append(frame)
         self._informative.append(bool(self.place_map.informative([frame])[0]))
+
+    def _stationary(self, frame: int) -> bool:
+        """Whether a query frame shows what the previous one showed: its distance to it is
+        below ``stationary`` times the median distance between consecutive map frames
+        (calibrated on the map, i.e. the reference traversal, at the first query frame; 0 in a
+        stream, which has no map to calibrate on at first)."""
+        pm = self.place_map
+        if self._stationary_limit is None:
+            n_map = int(pm.place_offsets()[-1])
+            limit = 0.0
+            if self.config.stationary > 0 and n_map >= 2 and self._traversal.get(self._open, "") != "stream":
+                vectors = pm.vectors(pm.map_frames_at(np.arange(n_map)))
+                steps = rowwise(vectors[:-1], vectors[1:], pm.metric)  # type: ignore[arg-type]
+                limit = self.config.stationary * float(np.median(steps))
+            self._stationary_limit = limit
+        if self._stationary_limit <= 0 or not self._informative[-1] or not bool(pm.informative([frame])[0]):
+            return False  # featureless frames all look alike, moving or not
+        pair = pm.vectors([self._order[-1], frame])
+        return float(rowwise(pair[:1], pair[1:], pm.metric)[0]) < self._stationary_limit  # type: ignore[arg-type]
 
     def _pair_distances(self, positions: np.ndarray, map_positions: np.ndarray) -> np.ndarray:
         pm = self.place_map
@@ -439,8 +470,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         best, source = record.trajectories[0]
         placement = along[0]
         if c.realign:
-            placement = realign(self._pairs, along, self._informative_rows(record.positions), c.anchor_slack,
-                                record.n_map, record.map_informative)
+            placement = realign(self._pairs, along, self._informative_rows(np.unique(record.positions)), c.anchor_slack,
+                                record.n_map, record.map_informative, pace=c.speed_search == "lines")
         local = float("nan")
         if c.line_check and self._confidence_kind == "uniqueness" and confidence > 0:
             rows = self._informative_rows(range(span[0], span[1] + 1))
