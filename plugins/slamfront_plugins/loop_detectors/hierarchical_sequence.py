@@ -179,7 +179,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             "to the speed and direction they settled on (their median speed divided and multiplied by "
             "cone_margin), until an answer is inconsistent; 0: never (designed on Nordland 2900-3499)"
         )
-        cone_margin: float = Field(1.5, gt=1, description="speed_search cone: how far around the settled speed "
+        cone_margin: float = Field(1.75, gt=1, description="speed_search cone: how far around the settled speed "
                                    "the narrowed cone reaches (a factor)")
         stationary: float = Field(
             0.02, ge=0, description="a query frame closer to the previous one than this times the median distance "
@@ -265,6 +265,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
                           c.cone_keep) if c.speed_search == "cone" else None
         self._stationary_limit: float | None = None  # calibrated at the first query frame
+        self._moved = False  # the query has moved since its first frame
         self._run_speeds: list[float] = []  # speeds answered along in the current run of consistent sequences
         self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
         self._wide = True  # searching the whole cone until a run settles
@@ -278,10 +279,17 @@ class HierarchicalSequence(PlaceSequenceDetector):
             UNIQUENESS_ACCEPT if c.confidence == "uniqueness" else DISTANCE_ACCEPT)
 
     def _seen(self, frame: int) -> None:
-        if self._order and self._stationary(frame):  # not moved: it shares the previous frame's position
-            self._position[frame] = len(self._order) - 1
-            self._count("stationary")
-            return
+        if self._order and self._stationary(frame):
+            # not moved: it shares the previous frame's position, once the query has started moving (a
+            # recording often starts with an idle or frozen camera that datasets still pair frame by frame:
+            # Nordland's winter traversal opens with 17 identical frames its ground truth pairs with 17
+            # moving summer frames)
+            if self._moved:
+                self._position[frame] = len(self._order) - 1
+                self._count("stationary")
+                return
+        elif self._order:
+            self._moved = True
         self._position[frame] = len(self._order)
         self._order.append(frame)
         self._informative.append(bool(self.place_map.informative([frame])[0]))
