@@ -109,3 +109,31 @@ def test_hierarchical_matches_a_retimed_or_reversed_query_and_logs_its_direction
     if timing != "half":
         results, _ = _run(reference, query, sequence_frames=20, speed_search="lines")
         assert sum(abs(r.match - truth[k]) <= 2 for k, r in results.items() if r.match >= 0) < 0.5 * len(right)
+
+
+# --- sources: re-timed queries keep their ground truth ----------------------------------------------
+
+
+def test_a_paired_source_retimes_its_query_and_the_truth_follows(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from tests.test_paired_sources import _folders, _truth_rows
+    from slamfront_plugins.sources.paired_datasets import PairedFolders
+
+    reversed_ = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="reversed"))
+    _, queries, _ = reversed_.plan
+    assert [q.name for q in queries][:3] == ["019.png", "018.png", "017.png"]
+    assert _truth_rows(reversed_)[0] == [18, 19] and _truth_rows(reversed_)[19] == [0, 1]
+    half = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="half"))
+    assert len(half.plan[1]) == 39 and _truth_rows(half)[5] == [1, 2, 3]
+
+
+def test_the_synthetic_world_drives_its_query_backwards_or_resampled_by_odometry() -> None:
+    from slamfront_plugins.sources.synthetic import SyntheticWorld
+
+    world = SyntheticWorld(SyntheticWorld.Config(frames_per_traversal=60, route_length_m=60, query_timing="reversed"))
+    truth = world.loop_ground_truth()
+    first = truth.matches[truth.indptr[0]:truth.indptr[1]]
+    assert len(world) == 120 and 59 in first.tolist() and 0 not in first.tolist()
+    stops = SyntheticWorld.Config(frames_per_traversal=300, route_length_m=300, query_timing="stop_and_go")
+    assert len(SyntheticWorld(stops).pass_positions(1)) > 300  # stops add frames
+    smart = SyntheticWorld(stops.model_copy(update={"resample_m": 1.0}))
+    assert np.array_equal(smart.pass_positions(1), np.arange(300.0))  # one frame per metre: the stops are gone

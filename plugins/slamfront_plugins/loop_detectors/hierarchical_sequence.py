@@ -6,7 +6,10 @@ candidate: no rho - 1 places needed before it). Then (pure logic in
 :mod:`.hierarchical_frames`):
 
 2. level 2 compares every candidate frame by frame: straight trajectories through the
-   map frames at speeds ``vmin..vmax`` over the last ``sequence_frames`` query frames,
+   map frames over the last ``sequence_frames`` query frames, at speeds calibrated from
+   the answers (``speed_search: cone``: a wide cone of speeds, forwards and backwards,
+   searched coarse to fine until a run of answers settles on a speed, then the speeds
+   around it; ``lines``: ``vmin..vmax``, the query at the map's pace),
    anchored where level 1 paired the query place with a map place
    (:func:`~.hierarchical_frames.compare_candidates`). The last answer, continued, is
    one more candidate (the *track*); it replaces the faithful detector's rebuilt
@@ -135,7 +138,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
 
     Query sequences of ``rho`` places are searched in the map: level 1 finds ``psi``
     candidate places, level 2 compares each frame by frame along straight trajectories
-    (speeds ``vmin..vmax``, as SeqSLAM's) together with the last answer continued,
+    (at any speed and in either direction, the range calibrated from the answers; or
+    ``vmin..vmax`` as SeqSLAM's) together with the last answer continued,
     keeps the best temporally consistent one (``alpha`` frames), and level 3 gives each
     query frame a match and a confidence, or an explicit no-answer. Needs a place map
     that can be searched by place (``hierarchical``, or ``flat``). Defaults of rho, psi,
