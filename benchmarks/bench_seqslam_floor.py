@@ -4,7 +4,15 @@ The work of `nordland_seqslam` (Rodrigues 2019's settings: 32x32 thumbnails, ds 
 3,576 references x 3,576 queries): the difference matrix (13 billion absolute byte
 differences), the contrast enhancement, and the straight-trajectory search (for each of
 3,536 answered queries, 21 velocities x 41 columns x 3,576 start rows: 10.9 billion
-float64 additions), then the answers.
+float64 additions), then the answers. Its default search is now the speed-free one (``search: paths``: paths of
+straight 20-frame segments at 0.5-2x, both directions, by dynamic programming); the
+straight-trajectory search (``search: lines``, OpenSeqSLAM's) is timed beside it, and the
+whole detector with each.
+
+The path search's floor is derived, not compiled: its additions (per answered query and
+reference row, 2 directions x 2 sides x moves x segment length) at the rate the C floor
+adds the straight trajectories' (the same contiguous float64 adds; the path's minimum per
+segment is left out, so the ratio is an upper bound).
 
 The floor is that arithmetic and nothing else, as tight C compiled here with
 ``gcc -O3 -march=native -fopenmp`` on 2 threads: the difference matrix with AVX2's
@@ -40,6 +48,9 @@ from common import publish, table  # noqa: E402
 from slamfront.core.seqslam import (  # noqa: E402
     difference_columns,
     enhance_contrast,
+    path_offsets,
+    path_scores_block,
+    path_segments,
     sequence_scores_block,
     trajectory_offsets,
 )
@@ -176,6 +187,9 @@ def main() -> None:
                                               for s in blocks]),
         "trajectory search": best(lambda: [sequence_scores_block(shifted[:, s : min(s + c.chunk, answered) + c.ds], offsets)
                                            for s in blocks]),
+        "path search (default)": best(lambda: [path_scores_block(
+            shifted[:, s : min(s + c.chunk, answered) + c.ds], c.ds, c.path_segment, c.path_low, c.path_high,
+            c.reverse) for s in blocks]),
     }
     # the former implementation on a sample of queries, scaled to all of them
     sample = 64
@@ -185,6 +199,8 @@ def main() -> None:
                                            for n in range(sample)]) * answered / sample,
     }
     detector_seconds = best(lambda: time_detector(lambda: type(detector)(detector.config), frames, vectors))
+    lines_config = detector.config.model_copy(update={"search": "lines"})
+    lines_seconds = best(lambda: time_detector(lambda: type(detector)(lines_config), frames, vectors))
     load.append(os.getloadavg()[0])
 
     floor: dict[str, float] = {}
@@ -204,19 +220,30 @@ def main() -> None:
             check = sequence_scores_block(shifted[:, : 50 + c.ds], offsets)
             assert np.array_equal(check, scores[:50]), "floor trajectory sums disagree"
     load.append(os.getloadavg()[0])
+    bounds = path_segments(c.ds, c.path_segment)
+    moves = path_offsets(bounds, c.path_low, c.path_high).shape[1]
+    path_adds = answered * n_ref * (2 if c.reverse else 1) * 2 * moves * int(bounds[-1])
+    line_adds = answered * len(offsets) * (c.ds + 1) * n_ref
+    if "trajectory search" in floor:
+        floor["path search (default)"] = floor["trajectory search"] * path_adds / line_adds
 
     work = {
         "difference matrix": f"{n_ref * n_q * pixels / 1e9:.1f} G byte differences",
         "contrast enhancement": f"{n_ref * n_q / 1e6:.1f} M entries",
-        "trajectory search": f"{answered * len(offsets) * (c.ds + 1) * n_ref / 1e9:.1f} G float64 additions",
+        "trajectory search": f"{line_adds / 1e9:.1f} G float64 additions (search: lines)",
+        "path search (default)": f"{path_adds / 1e9:.1f} G float64 additions (search: paths; floor derived)",
     }
     rows = [[part, work[part], former.get(part, "-"), ours[part], floor.get(part, "-"),
              ours[part] / floor[part] if part in floor else "-"] for part in ours]
-    floor_total = sum(floor.values())
-    rows.append(["whole detector (process + finish)", "the above + answers", "-", detector_seconds,
-                 floor_total if floor else "-", detector_seconds / floor_total if floor else "-"])
+    floor_paths = floor.get("difference matrix", 0.0) + floor.get("path search (default)", 0.0)
+    floor_lines = floor.get("difference matrix", 0.0) + floor.get("trajectory search", 0.0)
+    rows.append(["whole detector (process + finish), search: paths (default)", "difference matrix + paths + answers",
+                 "-", detector_seconds, floor_paths if floor else "-", detector_seconds / floor_paths if floor else "-"])
+    rows.append(["whole detector (process + finish), search: lines", "difference matrix + lines + answers", "-",
+                 lines_seconds, floor_lines if floor else "-", lines_seconds / floor_lines if floor else "-"])
     body = "\n\n".join([
-        f"Whole Nordland route, `nordland_seqslam` settings (ds {c.ds}, v {c.vmin}-{c.vmax}, R {c.contrast_window}): "
+        f"Whole Nordland route, `nordland_seqslam` settings (ds {c.ds}, v {c.vmin}-{c.vmax} for lines, paths of "
+        f"{c.path_segment}-frame segments at {c.path_low}-{c.path_high} both ways, R {c.contrast_window}): "
         f"{n_ref} references x {n_q} queries of {pixels} pixels. Best of {args.repeats}; load (1-min average) "
         f"{', '.join(f'{v:.1f}' for v in load)} at start, after ours, after the floor, on {os.cpu_count()} cores.",
         table(["part", "work", "former NumPy/OpenCV s (sampled)", "slamfront s", "floor s (C, 2 threads)",
@@ -226,7 +253,8 @@ def main() -> None:
         "Floor: gcc -O3 -march=native -fopenmp, 2 threads: `_mm256_sad_epu8` for the difference matrix (its "
         "sums are checked equal to ours), contiguous float64 adds for the trajectory search (checked equal to "
         "ours on 50 queries). The floor's whole-detector figure is its difference matrix + trajectory search only "
-        "(contrast enhancement and answers left out), so the ratio is an upper bound.",
+        "(contrast enhancement and answers left out), so the ratio is an upper bound. The path search's floor is "
+        "the C straight-trajectory floor scaled by the ratio of additions (derived, not compiled).",
     ])
     publish("seqslam_floor", "SeqSLAM detector vs the hardware floor", body)
 

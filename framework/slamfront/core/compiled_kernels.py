@@ -397,3 +397,56 @@ def soft_votes(theta, weight, blocks, row_weights, col_weights, bin_steps, bins,
                 target = blocks[corner, cy, cx] + (np.int64(low) + step) % bins
                 vote = weight[cy, cx] * row_weights[corner, cy, cx] * col_weights[corner, cy, cx] * share
                 histogram[target] += vote
+@jit
+def path_sweep(columns, queries, half, bounds, offsets, directions, out, lo, hi):  # type: ignore[no-untyped-def]
+    # columns: (C, R) float64; query n's window is columns n .. n + 2 * half, answered at
+    # its middle column n + half. A path runs from the middle to each end in segments
+    # bounds[s] .. bounds[s + 1] (columns away from the middle), each a line of one of
+    # the moves: offsets[s, v, j] rows after j columns (j = 1 .. segment length; its last
+    # entry is the segment's move), continuous at the segment ends; towards the window's
+    # end rows go by +direction * offset, towards its start by -direction * offset.
+    # out[n, r] = min over directions and paths through (middle, r) of the sum of their
+    # entries (inf: no path stays in the reference). Cost-to-go by dynamic programming.
+    n_ref = columns.shape[1]
+    n_segments = len(bounds) - 1
+    n_moves = offsets.shape[1]
+    togo = np.empty(n_ref, dtype=np.float64)
+    new = np.empty(n_ref, dtype=np.float64)
+    acc = np.empty(n_ref, dtype=np.float64)
+    total = np.empty(n_ref, dtype=np.float64)
+    for i in range(lo, hi):
+        n = queries[i]
+        middle = n + half
+        best = out[n]
+        best[:] = np.inf
+        for direction in directions:
+            total[:] = columns[middle]
+            for side in (1, -1):
+                sign = direction * side
+                togo[:] = 0.0
+                for s in range(n_segments - 1, -1, -1):
+                    b = bounds[s]
+                    length = bounds[s + 1] - b
+                    new[:] = np.inf
+                    for v in range(n_moves):
+                        move = sign * offsets[s, v, length]
+                        r_lo = max(0, -move)
+                        r_hi = min(n_ref, n_ref - move)
+                        if r_lo >= r_hi:
+                            continue
+                        acc[r_lo:r_hi] = 0.0
+                        for j in range(1, length + 1):
+                            column = columns[middle + side * (b + j)]
+                            shift = sign * offsets[s, v, j]
+                            for r in range(r_lo, r_hi):
+                                acc[r] += column[r + shift]
+                        for r in range(r_lo, r_hi):
+                            cost = acc[r] + togo[r + move]
+                            if cost < new[r]:
+                                new[r] = cost
+                    togo[:] = new
+                for r in range(n_ref):
+                    total[r] += togo[r]
+            for r in range(n_ref):
+                if total[r] < best[r]:
+                    best[r] = total[r]

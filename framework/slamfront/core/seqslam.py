@@ -15,6 +15,9 @@ The steps, each a function on arrays:
    enhanced columns ``N - ds/2 .. N + ds/2`` starting at every reference row, over the
    velocities ``vmin .. vmax`` (:func:`trajectory_offsets`); a trajectory leaving the
    reference costs infinity.
+4b. :func:`path_scores_block` (``search: paths``, not OpenSeqSLAM): the best path of
+   straight segments at any speed in a wide range, forwards or backwards, through every
+   reference row at the query's own column, by dynamic programming.
 5. :func:`best_match`: the best start row, and the uniqueness ratio
    ``best / second best outside a window of Rwindow rows`` (lower is surer). The match is
    the start row + ``ds/2``, as OpenSeqSLAM reports it.
@@ -233,3 +236,106 @@ def best_match(scores: np.ndarray, ds: int, rwindow: int = 10) -> SequenceMatch 
     best = float(scores[start])
     ratio = best / second if second > 0 else (0.0 if best == 0 and second == 0 else 1.0)
     return SequenceMatch(start=start, reference=start + ds // 2, ratio=float(ratio))
+
+
+def path_segments(ds: int, segment: int) -> np.ndarray:
+    """(S + 1,) column distances from the middle of a ``ds + 1``-column window where the
+    segments of a path end: ``0, segment, 2 segment, ..., ds / 2`` (the last may be shorter)."""
+    if ds < 2 or ds % 2:
+        raise CoreError(f"ds must be an even number >= 2, got {ds}")
+    half = ds // 2
+    return np.unique(np.append(np.arange(0, half, max(segment, 1)), half)).astype(np.int64)
+
+
+def path_offsets(bounds: np.ndarray, low: float, high: float) -> np.ndarray:
+    """(S, M, L + 1) row offsets of the segment lines a path may take: segment ``s`` of
+    length ``l`` moves ``m`` rows, ``m`` from ``ceil(low * l)`` to ``floor(high * l)`` (speeds
+    ``low..high``, :func:`slamfront.core.sequences.cone_speeds` at the segment's resolution),
+    ``offsets[s, v, j] = floor(j * m / l)``; shorter segments repeat their last move to fill M."""
+    from slamfront.core.sequences import cone_speeds
+
+    lengths = np.diff(bounds)
+    moves = [np.unique(np.round(cone_speeds(low, high, int(length), False) * length).astype(np.int64))
+             for length in lengths]
+    width = max(len(m) for m in moves)
+    out = np.zeros((len(lengths), width, int(lengths.max()) + 1), dtype=np.int64)
+    for s, (length, m) in enumerate(zip(lengths, moves)):
+        m = np.concatenate([m, np.full(width - len(m), m[-1])])
+        steps = np.arange(int(length) + 1)
+        out[s, :, : length + 1] = np.floor(steps[None, :] * m[:, None] / length + 1e-9).astype(np.int64)
+    return out
+
+
+def path_scores_block(
+    columns: np.ndarray,
+    ds: int,
+    segment: int,
+    low: float,
+    high: float,
+    reverse: bool,
+    threads: int | None = None,
+) -> np.ndarray:
+    """Speed-free sequence search: for each query, the best *path* through every reference
+    row at its middle column, over its ``ds + 1`` columns.
+
+    A path is made of straight segments of ``segment`` columns, each at any speed
+    ``low..high`` (rows per column), joined end to end, in one direction (with
+    ``reverse``, forward and backward paths both; a path does not turn round): a query run
+    at a changing pace, or backwards, is followed, and the best path is found by dynamic
+    programming over the segment ends (the cost-to-go from the middle to either end,
+    Sakoe & Chiba 1978's dynamic time warping with a slope constraint, as in Hansen &
+    Browning 2014's HMM sequence search) instead of by trying every line. Work per query:
+    ``R x moves x ds`` additions per direction.
+
+    :param columns: (R, Q + ds) shifted enhanced differences; query ``n``'s window is
+        columns ``n .. n + ds``.
+    :returns: (Q, R) float64 best path cost per query and middle row (inf: no path stays
+        inside the reference).
+    """
+    n_ref, n_columns = columns.shape
+    n_queries = n_columns - ds
+    if n_queries < 1:
+        raise CoreError(f"a window spans {ds + 1} columns but the block has {n_columns}")
+    bounds = path_segments(ds, segment)
+    offsets = path_offsets(bounds, low, high)
+    directions = np.asarray([1, -1] if reverse else [1], dtype=np.int64)
+    data = np.ascontiguousarray(np.asarray(columns, dtype=np.float64).T)
+    out = np.empty((n_queries, n_ref), dtype=np.float64)
+    queries = np.arange(n_queries, dtype=np.int64)
+    if threads is None:
+        threads = threads_for(float(n_queries) * n_ref * offsets.shape[1] * ds * len(directions))
+    kernels = compiled()
+    run_chunks(lambda lo, hi: kernels.path_sweep(data, queries, ds // 2, bounds, offsets, directions, out, lo, hi),
+               n_queries, threads)
+    return out
+
+
+def path_scores_reference(window: np.ndarray, segment: int, low: float, high: float, reverse: bool) -> np.ndarray:
+    """:func:`path_scores_block` for one window (R, ds + 1), the same dynamic programme written
+    row by row in NumPy (the tests' oracle: slow)."""
+    n_ref, width = window.shape
+    ds = width - 1
+    bounds = path_segments(ds, segment)
+    offsets = path_offsets(bounds, low, high)
+    half = ds // 2
+    best = np.full(n_ref, np.inf)
+    for direction in ([1, -1] if reverse else [1]):
+        total = window[:, half].astype(np.float64).copy()
+        for side in (1, -1):
+            sign = direction * side
+            togo = np.zeros(n_ref)
+            for s in range(len(bounds) - 2, -1, -1):
+                b, length = bounds[s], bounds[s + 1] - bounds[s]
+                new = np.full(n_ref, np.inf)
+                for v in range(offsets.shape[1]):
+                    for r in range(n_ref):
+                        rows = r + sign * offsets[s, v, 1 : length + 1]
+                        end = r + sign * offsets[s, v, length]
+                        if not 0 <= end < n_ref or rows.min() < 0 or rows.max() >= n_ref:
+                            continue
+                        cols = half + side * (b + np.arange(1, length + 1))
+                        new[r] = min(new[r], window[rows, cols].sum() + togo[end])
+                togo = new
+            total += togo
+        best = np.minimum(best, total)
+    return best

@@ -1,4 +1,5 @@
-"""Sequence alignment on distance matrices: slide a query sequence along a longer one.
+"""Sequence alignment on distance matrices: slide a query sequence along a longer one, and
+the speeds a speed-free line search tries (coarse to fine over a wide cone).
 
 Used by sequence-based loop detectors (template matching of Rodrigues 2019, eq. 3.10). Pure
 functions over arrays.
@@ -35,3 +36,46 @@ def best_alignment(distances: np.ndarray) -> tuple[int, float]:
     costs = alignment_costs(distances)
     best = int(np.argmin(costs))
     return best, float(costs[best])
+
+
+# --- speed-free line search: a wide cone of speeds, searched coarse to fine -----------------------
+
+
+def cone_speeds(low: float, high: float, length: int, reverse: bool) -> np.ndarray:
+    """(V,) signed speeds (map frames per query frame) spanning the cone ``low..high``, in
+    steps of ``1 / length``: each step moves the far end of a ``length``-frame line by one
+    frame, so no coarser line can be missed by more than a frame there. With ``reverse``,
+    the same speeds negated too (a traversal driven the other way).
+
+    :raises CoreError: not ``0 < low <= high``, or ``length < 1``.
+    """
+    if not 0 < low <= high:
+        raise CoreError(f"need 0 < low <= high, got {low}, {high}")
+    if length < 1:
+        raise CoreError(f"need a length >= 1, got {length}")
+    step = 1.0 / length
+    forward = np.round(np.arange(low, high + step / 2, step), 9)
+    return np.concatenate([forward, -forward[::-1]]) if reverse else forward
+
+
+def refined_speeds(speed: float, coarse_length: int, fine_length: int, low: float, high: float) -> np.ndarray:
+    """(V,) speeds around ``speed`` found over ``coarse_length`` frames, tried again over
+    ``fine_length`` (> coarse_length) frames: every speed within one coarse step
+    (``1 / coarse_length``) in fine steps (``1 / fine_length``), kept inside the cone
+    ``low..high`` on ``speed``'s side (its sign: the direction is settled)."""
+    sign = 1.0 if speed >= 0 else -1.0
+    coarse, fine = 1.0 / max(coarse_length, 1), 1.0 / max(fine_length, 1)
+    magnitudes = np.round(abs(speed) + np.arange(-coarse, coarse + fine / 2, fine), 9)
+    magnitudes = magnitudes[(magnitudes >= low - 1e-9) & (magnitudes <= high + 1e-9)]
+    if not len(magnitudes):
+        magnitudes = np.asarray([min(max(abs(speed), low), high)])
+    return sign * np.unique(magnitudes)
+
+
+def coarse_to_fine_lengths(first: int, total: int) -> list[int]:
+    """Frames compared at each stage of a coarse-to-fine line search: ``first``, doubled
+    until ``total`` (the last stage compares all ``total``)."""
+    lengths = [min(max(first, 1), total)]
+    while lengths[-1] < total:
+        lengths.append(min(2 * lengths[-1], total))
+    return lengths

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamfront.core.sequences import coarse_to_fine_lengths, cone_speeds, refined_speeds
+
 MIN_INSIDE = 0.5
 """Share of a sequence's rows a line must pair inside the map, on informative map frames,
 to be scored (on those rows): a route may go on past the map's end, or past a stretch
@@ -201,6 +203,89 @@ def best_trajectory(
     )
 
 
+@dataclass(frozen=True)
+class Cone:
+    """The speed-free search: lines at any speed ``low..high`` (map frames per query frame)
+    in each of ``directions`` (1: forward, -1: the route driven the other way), found
+    coarse to fine (:func:`cone_trajectory`) rather than by trying every line."""
+
+    low: float
+    high: float
+    directions: tuple[float, ...]
+    first: int
+    """Query frames of the coarse stage (the lines nearest the anchor; doubled per stage)."""
+    keep: int
+    """Lines kept from one stage to the next."""
+
+
+def cone_trajectory(
+    distances: PairDistances,
+    rows: np.ndarray,
+    anchor_query: int,
+    anchors: tuple[int, int],
+    slack: int,
+    cone: Cone,
+    n_map: int,
+    map_informative: np.ndarray | None = None,
+    stages: int | None = None,
+) -> Trajectory | None:
+    """The lowest-cost line through one anchor at any speed of the ``cone``, coarse to fine.
+
+    The coarse stage tries every speed of the cone (steps of ``1 / cone.first``, in each
+    of its directions) and shifts ``-slack..slack`` over the last
+    ``cone.first`` rows; each following stage doubles the rows and tries, around each of
+    the ``cone.keep`` best lines so far, the speeds within one coarse step (in the finer
+    step) and shifts of -1..1 (:func:`slamfront.core.sequences.refined_speeds`). A line
+    found over few frames is refined rather than every line of the cone tried over all
+    of them: the work grows with the cone's width only at the coarse stage. This is the
+    cone search with a wide speed range of the speed-free sequence matching literature
+    (SeqSLAM's lines, Milford & Wyeth 2012, without their fixed speed range); a match
+    whose speed changes within one window is followed only as well as one line fits it.
+
+    :param anchors: the map-frame position paired with ``anchor_query`` for forward lines
+        and for reverse ones (a place's first frame is paired with its first frame going
+        forward, its last going backwards).
+    :param stages: stop after this many stages (None: until all rows are compared).
+    :returns: None when no line keeps at least half of the rows inside the map.
+    """
+    if len(rows) == 0:
+        return None
+    lengths = coarse_to_fine_lengths(cone.first, len(rows))[:stages]
+    shifts = np.arange(-slack, slack + 1, dtype=np.int64)
+    found: list[Trajectory] = []
+    for sign in cone.directions:
+        anchor_map = anchors[0] if sign > 0 else anchors[1]
+        velocities = sign * cone_speeds(cone.low, cone.high, lengths[0], False)
+        found += _lines(distances, rows[-lengths[0]:], anchor_query, anchor_map, shifts, velocities, n_map,
+                        map_informative)
+    for coarse, fine in zip(lengths[:-1], lengths[1:]):
+        kept = sorted(found, key=lambda t: t.cost)[: cone.keep]
+        found = []
+        for line in kept:
+            velocities = refined_speeds(line.speed, coarse, fine, cone.low, cone.high)
+            found += _lines(distances, rows[-fine:], anchor_query, line.anchor_map, np.arange(-1, 2), velocities,
+                            n_map, map_informative)
+    return min(found, key=lambda t: t.cost) if found else None
+
+
+def _lines(
+    distances: PairDistances,
+    rows: np.ndarray,
+    anchor_query: int,
+    anchor_map: int,
+    shifts: np.ndarray,
+    velocities: np.ndarray,
+    n_map: int,
+    map_informative: np.ndarray | None,
+) -> list[Trajectory]:
+    """Every line through the anchor's shifts and speeds that fits in the map, scored (one lookup)."""
+    costs, counts = trajectory_costs(distances, rows, anchor_query, anchor_map, shifts, velocities, n_map,
+                                     map_informative)
+    return [Trajectory(cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
+                       speed=float(velocities[v]), rows=int(counts[s, v]))
+            for s, v in zip(*np.nonzero(np.isfinite(costs)))]
+
+
 def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> float:
     """SeqSLAM's confidence among the candidates: ``1 - best / second``, ``second`` being
     the lowest cost of a candidate ending more than ``window`` map frames from the best;
@@ -260,6 +345,8 @@ def compare_candidates(
     refine: int,
     screen_frames: int,
     screen_speeds: np.ndarray,
+    cone: Cone | None = None,
+    reverse_anchors: list[int] | None = None,
 ) -> list[tuple[Trajectory, int]]:
     """Level 2, frame by frame: each anchor's best trajectory over the query positions
     ``rows``, best first (ties: the anchors' order).
@@ -269,23 +356,41 @@ def compare_candidates(
     :param refine: when > 0 and there are more level-1 anchors, only the ``refine`` whose
         best line at ``screen_speeds`` over the last ``screen_frames`` rows costs least (and
         the track) get the full comparison, at every speed of ``velocities``.
+    :param cone: None: lines at ``velocities`` (``screen_speeds`` for the screening); else
+        lines at any speed of the cone (:func:`cone_trajectory`), screened by its coarse
+        stage over ``screen_frames`` rows.
+    :param reverse_anchors: each anchor's map-frame position for reverse lines (with a cone,
+        or when every speed is negative; None: the same as forward).
     :returns: ``(trajectory, source)`` of the anchors with a trajectory in the map.
     """
-    kept = anchors
-    searched = [a for a in anchors if a[2] >= 0]
+    backwards = reverse_anchors if reverse_anchors is not None else [m for _, m, _ in anchors]
+
+    def search(k: int, compared: np.ndarray, screening: bool) -> Trajectory | None:
+        t, m, _ = anchors[k]
+        if cone is None:
+            tried = screen_speeds if screening else velocities
+            return best_trajectory(distances, compared, t, backwards[k] if tried.max() < 0 else m, slack, tried,
+                                   n_map, map_informative)
+        if screening:
+            return cone_trajectory(distances, compared, t, (m, backwards[k]), slack,
+                                   Cone(cone.low, cone.high, cone.directions, screen_frames, cone.keep), n_map,
+                                   map_informative, stages=1)
+        return cone_trajectory(distances, compared, t, (m, backwards[k]), slack, cone, n_map, map_informative)
+
+    kept = list(range(len(anchors)))
+    searched = [k for k, a in enumerate(anchors) if a[2] >= 0]
     if refine and len(searched) > refine:
         screened = []
-        for k, (t, m, _) in enumerate(searched):
-            found = best_trajectory(distances, rows[-screen_frames:], t, m, slack, screen_speeds, n_map,
-                                    map_informative)
+        for k in searched:
+            found = search(k, rows[-screen_frames:], True)
             if found is not None:
                 screened.append((found.cost, k))
-        kept = [searched[k] for _, k in sorted(screened)[:refine]] + [a for a in anchors if a[2] < 0]
+        kept = [k for _, k in sorted(screened)[:refine]] + [k for k, a in enumerate(anchors) if a[2] < 0]
     found = []
-    for k, (t, m, source) in enumerate(kept):
-        trajectory = best_trajectory(distances, rows, t, m, slack, velocities, n_map, map_informative)
+    for order, k in enumerate(kept):
+        trajectory = search(k, rows, False)
         if trajectory is not None:
-            found.append((trajectory.cost, k, trajectory, source))
+            found.append((trajectory.cost, order, trajectory, anchors[k][2]))
     return [(trajectory, source) for _, _, trajectory, source in sorted(found, key=lambda f: (f[0], f[1]))]
 
 
@@ -299,15 +404,18 @@ def realign(
     slack: int,
     n_map: int,
     map_informative: np.ndarray,
+    pace: bool = True,
 ) -> Trajectory:
     """Level 3 (eq. 3.10 on Q's frames): Q's informative query positions ``rows`` slid along
     the ``chosen`` trajectories and, as the thesis's template matching, at speed 1 through
-    their middle, ``-slack..slack`` map frames; the placement they fit best (ties: the
+    their middle (-1 for a trajectory running backwards), ``-slack..slack`` map frames; the placement they fit best (ties: the
     first tried; ``chosen[0]`` when none fits).
 
     A placement may leave the map (the route goes on past the map's end, or past a
     stretch the map holds elsewhere) as long as at least half of the rows stay inside, as
-    in level 2; it is scored on those, by level 2's rule (the line alone, no slack)."""
+    in level 2; it is scored on those, by level 2's rule (the line alone, no slack).
+    ``pace: False`` slides Q at each chosen trajectory's own speed instead of speed 1 (a
+    query that need not run at the map's pace)."""
     if not len(rows):
         return chosen[0]
     middle = int(rows[len(rows) // 2])
@@ -315,7 +423,8 @@ def realign(
     for trajectory in dict.fromkeys(chosen):
         placements.append(trajectory)
         for shift in range(-slack, slack + 1):
-            placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift, 1.0,
+            speed = math.copysign(1.0, trajectory.speed) if pace else trajectory.speed
+            placements.append(Trajectory(trajectory.cost, middle, int(trajectory.at(middle)) + shift, speed,
                                          trajectory.rows))
             if shift:
                 placements.append(Trajectory(trajectory.cost, trajectory.anchor_query,

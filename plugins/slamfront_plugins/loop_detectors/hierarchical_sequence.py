@@ -6,7 +6,10 @@ candidate: no rho - 1 places needed before it). Then (pure logic in
 :mod:`.hierarchical_frames`):
 
 2. level 2 compares every candidate frame by frame: straight trajectories through the
-   map frames at speeds ``vmin..vmax`` over the last ``sequence_frames`` query frames,
+   map frames over the last ``sequence_frames`` query frames, at speeds calibrated from
+   the answers (``speed_search: cone``: a wide cone of speeds, forwards and backwards,
+   searched coarse to fine until a run of answers settles on a speed, then the speeds
+   around it; ``lines``: ``vmin..vmax``, the query at the map's pace),
    anchored where level 1 paired the query place with a map place
    (:func:`~.hierarchical_frames.compare_candidates`). The last answer, continued, is
    one more candidate (the *track*); it replaces the faithful detector's rebuilt
@@ -43,6 +46,7 @@ from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
+    Cone,
     PairDistances,
     Trajectory,
     compare_candidates,
@@ -84,7 +88,10 @@ class SequenceDecision(Message):
     track: bool = False
     """The best candidate was the track (the last answer, continued)."""
     speed: float = float("nan")
-    """Speed of the line answered along (map frames per query frame)."""
+    """Speed of the line answered along (map frames per query frame; negative: the query runs
+    the map backwards)."""
+    direction: str = ""
+    """forward or reverse: the direction the answered line runs through the map."""
     confidence: float = float("nan")
     line_uniqueness: float = float("nan")
     """How much better the answered line fits than itself moved by ``anchor_slack + 1 ..
@@ -132,7 +139,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
 
     Query sequences of ``rho`` places are searched in the map: level 1 finds ``psi``
     candidate places, level 2 compares each frame by frame along straight trajectories
-    (speeds ``vmin..vmax``, as SeqSLAM's) together with the last answer continued,
+    (at any speed and in either direction, the range calibrated from the answers; or
+    ``vmin..vmax`` as SeqSLAM's) together with the last answer continued,
     keeps the best temporally consistent one (``alpha`` frames), and level 3 gives each
     query frame a match and a confidence, or an explicit no-answer. Needs a place map
     that can be searched by place (``hierarchical``, or ``flat``). Defaults of rho, psi,
@@ -140,7 +148,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
     """
 
     name = "hierarchical_sequence"
-    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map")
+    branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map",
+                   "stationary")
 
     class Config(PlaceSequenceConfig):
         """Where each default comes from, and what changing it does on data it was not chosen on:
@@ -158,8 +167,39 @@ class HierarchicalSequence(PlaceSequenceDetector):
         sequence_frames: int = Field(
             40, ge=2, description=f"query frames compared per candidate, at least Q's ({HELD_OUT})"
         )
-        vmin: float = Field(0.8, gt=0, description=f"slowest trajectory, map frames per query frame ({HELD_OUT})")
-        vmax: float = Field(1.25, gt=0, description=f"fastest trajectory ({HELD_OUT})")
+        speed_search: Literal["cone", "lines"] = Field(
+            "cone", description="cone: lines at any speed cone_low..cone_high, and backwards (reverse), searched "
+            "coarse to fine (a query need not run at the map's pace or direction); lines: every line at vmin..vmax "
+            "(the query runs the map forwards at nearly its pace)"
+        )
+        cone_low: float = Field(0.4, gt=0, description="speed_search cone: slowest line, map frames per query frame")
+        cone_high: float = Field(2.5, gt=0, description="speed_search cone: fastest line")
+        reverse: bool = Field(True, description="speed_search cone: lines running the map backwards too")
+        cone_first: int = Field(
+            8, ge=2, description="speed_search cone: query frames of the coarse stage (doubled per stage)"
+        )
+        cone_keep: int = Field(4, ge=1, description="speed_search cone: lines kept from one stage to the next")
+        cone_settle: int = Field(
+            3, ge=0, description="speed_search cone: after this many consistent answers in a row, the cone narrows "
+            "to the speed and direction they settled on (their median speed divided and multiplied by "
+            "cone_margin), until an answer is inconsistent; 0: never (designed on Nordland 2900-3499)"
+        )
+        cone_margin: float = Field(1.75, gt=1, description="speed_search cone: how far around the settled speed "
+                                   "the narrowed cone reaches (a factor)")
+        stationary: float = Field(
+            0.02, ge=0, description="a query frame closer to the previous one than this times the median distance "
+            "between consecutive map frames is taken as not moved (a stop, or a slower pass than the map's "
+            "frame rate): it is paired where the previous one is; 0: every frame moves (designed on Nordland "
+            "2900-3499)"
+        )
+        cone_after: int = Field(
+            2, ge=0, description="speed_search cone: the whole cone is searched after this many inconsistent "
+            "answers in a row (and before the first run settles); otherwise lines at vmin..vmax, or around the "
+            "settled speed (designed on Nordland 2900-3499)"
+        )
+        vmin: float = Field(0.8, gt=0, description=f"speed_search lines: slowest trajectory, map frames per query "
+                            f"frame ({HELD_OUT})")
+        vmax: float = Field(1.25, gt=0, description=f"speed_search lines: fastest trajectory ({HELD_OUT})")
         anchor_slack: int = Field(
             2, ge=0, description=f"map frames either side of an anchor tried: a place spans frames ({HELD_OUT})"
         )
@@ -216,6 +256,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         def _speeds(self) -> HierarchicalSequence.Config:
             if self.vmin > self.vmax:
                 raise ValueError("vmin must not exceed vmax")
+            if self.cone_low > self.cone_high:
+                raise ValueError("cone_low must not exceed cone_high")
             return self
 
     def __init__(self, config: Config | None = None) -> None:
@@ -228,6 +270,13 @@ class HierarchicalSequence(PlaceSequenceDetector):
         # ever append), so an iteration reads it without gathering the whole map again
         self._map_informative = GrowingRows(1, dtype=bool)
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
+        self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
+                          c.cone_keep) if c.speed_search == "cone" else None
+        self._stationary_limit: float | None = None  # calibrated at the first query frame
+        self._moved = False  # the query has moved since its first frame
+        self._run_speeds: list[float] = []  # speeds answered along in the current run of consistent sequences
+        self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
+        self._wide = True  # searching the whole cone until a run settles
         # the cache keeps 4 windows of query positions: memory only (8 gives the same answers and distances)
         self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames)
         self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
@@ -238,9 +287,39 @@ class HierarchicalSequence(PlaceSequenceDetector):
             UNIQUENESS_ACCEPT if c.confidence == "uniqueness" else DISTANCE_ACCEPT)
 
     def _seen(self, frame: int) -> None:
+        if self._order and self._stationary(frame):
+            # not moved: it shares the previous frame's position, once the query has started moving (a
+            # recording often starts with an idle or frozen camera that datasets still pair frame by frame:
+            # Nordland's winter traversal opens with 17 identical frames its ground truth pairs with 17
+            # moving summer frames)
+            if self._moved:
+                self._position[frame] = len(self._order) - 1
+                self._count("stationary")
+                return
+        elif self._order:
+            self._moved = True
         self._position[frame] = len(self._order)
         self._order.append(frame)
         self._informative.append(self.place_map.informative([frame]))
+
+    def _stationary(self, frame: int) -> bool:
+        """Whether a query frame shows what the previous one showed: its distance to it is
+        below ``stationary`` times the median distance between consecutive map frames
+        (calibrated on the map, i.e. the reference traversal, at the first query frame; 0 in a
+        stream, which has no map to calibrate on at first)."""
+        pm = self.place_map
+        if self._stationary_limit is None:
+            n_map = int(pm.place_offsets()[-1])
+            limit = 0.0
+            if self.config.stationary > 0 and n_map >= 2 and self._traversal.get(self._open, "") != "stream":
+                vectors = pm.vectors(pm.map_frames_at(np.arange(n_map)))
+                steps = rowwise(vectors[:-1], vectors[1:], pm.metric)  # type: ignore[arg-type]
+                limit = self.config.stationary * float(np.median(steps))
+            self._stationary_limit = limit
+        if self._stationary_limit <= 0 or not self._informative[-1] or not bool(pm.informative([frame])[0]):
+            return False  # featureless frames all look alike, moving or not
+        pair = pm.vectors([self._order[-1], frame])
+        return float(rowwise(pair[:1], pair[1:], pm.metric)[0]) < self._stationary_limit  # type: ignore[arg-type]
 
     def _pair_distances(self, positions: np.ndarray, map_positions: np.ndarray) -> np.ndarray:
         pm = self.place_map
@@ -269,12 +348,17 @@ class HierarchicalSequence(PlaceSequenceDetector):
         rows = self._informative_rows(range(start, end + 1))
         anchor = self._position[self._frames[places[-1]][0]]
         anchors = [(anchor, int(offsets[h]), int(h)) for h in hits]
+        # going backwards, the query place's first frame is paired with the map place's last
+        reverse_anchors = [int(offsets[h + 1]) - 1 for h in hits]
         if self._track is not None and c.track:
             track, at = self._track
             anchors.append((at, int(track.at(at)), -1))
+            reverse_anchors.append(int(track.at(at)))
+        velocities, cone = self._search_speeds()
         trajectories = compare_candidates(
-            self._pairs, anchors, rows, n_map, map_informative, velocities=self._speeds, slack=c.anchor_slack,
-            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=self._speeds,
+            self._pairs, anchors, rows, n_map, map_informative, velocities=velocities, slack=c.anchor_slack,
+            refine=c.refine, screen_frames=c.screen_frames, screen_speeds=velocities, cone=cone,
+            reverse_anchors=reverse_anchors,
         )
         if not trajectories:
             self._count("no_candidate")
@@ -290,6 +374,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
         self._run = [*self._run, confidence] if consistent else [confidence]
+        self._run_speeds = [*self._run_speeds, best.speed] if consistent else [best.speed]
+        self._lost = 0 if consistent else self._lost + 1
         record = _Answer(number, places, frames, positions, trajectories, confidence,
                          float(np.mean(self._run[-c.evidence_iterations:])), consistent, n_map, map_informative,
                          int(rows[0]) if len(rows) else start)
@@ -298,9 +384,39 @@ class HierarchicalSequence(PlaceSequenceDetector):
                                  (min(record.window_start, int(positions[0])), end))
         return self._settle(record)
 
+    def _search_speeds(self) -> tuple[np.ndarray, Cone | None]:
+        """The lines searched now (``speed_search: cone``), calibrated from the answers so far:
+
+        - once more than ``cone_settle`` answers in a row were consistent, every line at the
+          speeds around the one they settled on (their median divided and multiplied by
+          ``cone_margin``), in their direction;
+        - after ``cone_after`` inconsistent answers in a row (and at the start), the whole
+          cone, coarse to fine (the query does not run as the map), until a run settles;
+        - otherwise every line at ``vmin..vmax`` (the map's pace: the prior).
+
+        A wide cone lets wrong candidates fit nearly as well as the right one, which costs
+        the uniqueness confidence; so it is searched only while the answers say the prior
+        does not hold. Returns (speeds of the lines, None) or (unused, the cone)."""
+        c = self.config
+        if self._cone is None:
+            return self._speeds, None
+        if c.cone_settle and len(self._run_speeds) > c.cone_settle:
+            self._wide = False
+            settled = float(np.median(self._run_speeds[-2 * c.cone_settle:]))
+            low = min(max(abs(settled) / c.cone_margin, c.cone_low), c.cone_high)
+            high = max(min(abs(settled) * c.cone_margin, c.cone_high), low)
+            return (1.0 if settled >= 0 else -1.0) * speeds(low, high, c.sequence_frames), None
+        if self._lost >= c.cone_after:
+            self._wide = True
+        if self._wide:  # until a run found in the whole cone settles
+            return self._speeds, self._cone
+        return self._speeds, None
+
     def _flush(self) -> list[Message]:
         """An iteration without candidates: what waited can no longer be validated by it."""
         self._run = []
+        self._run_speeds = []
+        self._lost += 1
         return self._settle(None)
 
     def _end(self) -> list[Message]:
@@ -381,8 +497,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         best, source = record.trajectories[0]
         placement = along[0]
         if c.realign:
-            placement = realign(self._pairs, along, self._informative_rows(record.positions), c.anchor_slack,
-                                record.n_map, record.map_informative)
+            placement = realign(self._pairs, along, self._informative_rows(np.unique(record.positions)), c.anchor_slack,
+                                record.n_map, record.map_informative, pace=c.speed_search == "lines")
         local = float("nan")
         if c.line_check and self._confidence_kind == "uniqueness" and confidence > 0:
             rows = self._informative_rows(range(span[0], span[1] + 1))
@@ -399,7 +515,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
                                   dtype=np.int64).reshape(-1, 2),
             candidate_costs=np.asarray([t.cost for t, _ in record.trajectories], dtype=np.float64),
             branch=branch, first=int(paired[0]), last=int(paired[-1]), cost=best.cost, track=source < 0,
-            speed=placement.speed, confidence=confidence, line_uniqueness=local,
+            speed=placement.speed, direction="reverse" if placement.speed < 0 else "forward",
+            confidence=confidence, line_uniqueness=local,
         )]
         for k, frame in enumerate(record.frames.tolist()):
             if not self._informative.view[int(record.positions[k]), 0]:

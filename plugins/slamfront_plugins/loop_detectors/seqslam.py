@@ -23,6 +23,7 @@ from slamfront.core.seqslam import (
     difference_columns,
     enhance_contrast,
     enhanced_lower_bound,
+    path_scores_block,
     sequence_scores_block,
     trajectory_offsets,
 )
@@ -33,8 +34,21 @@ class SeqSlamConfig(PluginConfig):
     """Parameters shared by both variants; defaults are OpenSeqSLAM 2013's."""
 
     ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, Rodrigues 2019: 40); even")
-    vmin: float = Field(0.8, gt=0, description="slowest trajectory, reference frames per query frame")
-    vmax: float = Field(1.2, gt=0, description="fastest trajectory")
+    search: Literal["lines", "paths"] = Field(
+        "paths", description="lines: OpenSeqSLAM's straight trajectories at vmin..vmax, the query running the "
+        "reference forwards at nearly its pace; paths: paths of straight segments at any speed path_low..path_high "
+        "each, forwards or (reverse) backwards, found by dynamic programming (a query at another or changing pace, "
+        "or driven the other way), answered at the query's own column"
+    )
+    vmin: float = Field(0.8, gt=0, description="search lines: slowest trajectory, reference frames per query frame")
+    vmax: float = Field(1.2, gt=0, description="search lines: fastest trajectory")
+    path_low: float = Field(0.5, gt=0, description="search paths: slowest segment, reference frames per query frame")
+    path_high: float = Field(2.0, gt=0, description="search paths: fastest segment")
+    path_segment: int = Field(
+        20, ge=1, description="search paths: query frames per straight segment (20 of ds 40: a path bends once "
+        "either side of the query; 10 lost more on the unchanged control of Nordland 2900-3499)"
+    )
+    reverse: bool = Field(True, description="search paths: backward paths too (the reference driven the other way)")
     contrast_window: int = Field(10, ge=2, description="R: rows of the local contrast enhancement window")
     rwindow: int = Field(10, ge=0, description="rows around the best match excluded for the second best")
     threshold: float = Field(0.1, ge=0, le=1, description="accept when confidence = 1 - ratio reaches this")
@@ -59,6 +73,8 @@ class SeqSlamConfig(PluginConfig):
             raise ValueError(f"ds must be even (OpenSeqSLAM rounds {self.ds} up to {self.ds + 1})")
         if self.vmin > self.vmax:
             raise ValueError("vmin must not exceed vmax")
+        if self.path_low > self.path_high:
+            raise ValueError("path_low must not exceed path_high")
         if self.mode == "online" and self.score_offset == "global_min":
             raise ValueError("online mode cannot know the global minimum: use score_offset: bound")
         return self
@@ -74,6 +90,8 @@ class _SequenceDetector(LoopDetector):
         super().__init__(config)
         c = self.config
         self._offsets = trajectory_offsets(c.ds, c.vmin, c.vmax)
+        # lines start ds/2 before the answered query (OpenSeqSLAM); paths are scored at its own column
+        self._answered_at = c.ds // 2 if c.search == "lines" else 0
         self._references: GrowingRows | None = None
         self._reference_frames: list[int] = []
         self._reference_index = np.empty(0, dtype=np.int64)
@@ -161,7 +179,7 @@ class _SequenceDetector(LoopDetector):
         columns = np.stack([c for _, c, _ in self._window], axis=1)
         shifted = columns.astype(np.float64) - enhanced_lower_bound(self.config.contrast_window)
         starts = self._start_rows([r for _, _, r in self._window], len(shifted))
-        return [self._answer(middle, sequence_scores_block(shifted, self._offsets, [starts])[0])]
+        return [self._answer(middle, self._scores(shifted, [starts])[0])]
 
     def finish(self) -> Sequence[LoopResult]:
         if self.config.mode == "online":
@@ -196,17 +214,25 @@ class _SequenceDetector(LoopDetector):
             columns, rows = kept.pop(k, None) or self._columns(queries[start - half : stop + half])
             shifted = columns.astype(np.float64) - offset  # once per block, not once per window
             starts = [self._start_rows(rows[lo : lo + c.ds + 1], len(shifted)) for lo in range(stop - start)]
-            scores = sequence_scores_block(shifted, self._offsets, starts)  # every query of the block at once
+            scores = self._scores(shifted, starts)  # every query of the block at once
             results += [self._answer(frames[n], scores[n - start]) for n in range(start, stop)]
         results += [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in frames[len(frames) - half :]]
         self._query_vectors.clear()
         return results
 
+    def _scores(self, shifted: np.ndarray, starts: list[np.ndarray | None]) -> np.ndarray:
+        """(Q, R) cost per query of a block and reference row (:func:`sequence_scores_block`'s
+        start rows for lines; :func:`path_scores_block`'s middle rows, every row, for paths)."""
+        c = self.config
+        if c.search == "lines":
+            return sequence_scores_block(shifted, self._offsets, starts)
+        return path_scores_block(shifted, c.ds, c.path_segment, c.path_low, c.path_high, c.reverse)
+
     def _answer(self, frame: int, scores: np.ndarray) -> LoopResult:
         """Match one query from its (R,) best trajectory costs per start row (computed on
         its window of enhanced columns in float64, shifted so that every score is >= 0)."""
         self._n_searches += 1
-        found = best_match(scores, self.config.ds, self.config.rwindow)
+        found = best_match(scores, 2 * self._answered_at, self.config.rwindow)
         if found is None:
             return self._no_answer(frame, "no trajectory stays inside the reference")
         confidence = float(np.clip(1.0 - found.ratio, 0.0, 1.0))
@@ -220,7 +246,7 @@ class _SequenceDetector(LoopDetector):
             match=int(reference_frames[found.reference]),
             confidence=confidence,
             accepted=confidence >= self.config.threshold,
-            candidates=reference_frames[ranked + self.config.ds // 2],
+            candidates=reference_frames[ranked + self._answered_at],
         )
 
     def _start_rows(self, rows: list[np.ndarray | None], n_ref: int) -> np.ndarray | None:

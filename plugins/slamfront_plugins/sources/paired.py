@@ -11,6 +11,8 @@ shows. :class:`PairedTraversals` turns a layout into a run:
 - the experiments of Rodrigues 2019 §4.4 on the reference: ``replaced`` swaps a block for
   frames of another dataset (those queries then have no true match), ``reordered``
   moves a block to the end (the route is visited in another order);
+- ``query_timing`` re-times the query (backwards, half or double speed, varying, stop
+  and go: :mod:`slamfront.core.retiming`), its ground truth following its frames;
 - ground truth by place (:meth:`LoopGroundTruth.from_places`): a match is correct when
   its reference frame shows a place within ``tolerance`` (zeta) of the query's place,
   counted in selected frames, so it stays right after a block is replaced or moved.
@@ -30,6 +32,7 @@ from pydantic import Field, model_validator
 
 from slamfront import DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
+from slamfront.core.retiming import Timing, retimed_frames
 from slamfront.data import DataPath
 from slamfront.imageio import IMAGE_SUFFIXES, read_image
 from slamfront.lazy import lazy_module
@@ -120,6 +123,11 @@ class PairedTraversals(Source):
             "descriptors mark featureless and detectors leave unanswered (blank)"
         )
         fps: float = Field(10.0, gt=0, description="frames per second, for timestamps")
+        query_timing: Timing = Field(
+            "original", description="re-time the query traversal after selection: reversed, half or double speed, "
+            "speed varying 0.6x-1.8x, or stop_and_go (stops drawn from seed); the ground truth follows the frames "
+            "(tests sequence detectors that must not assume the reference's pace)"
+        )
 
         @model_validator(mode="after")
         def _replacement_needs_replaced(self) -> PairedTraversals.Config:
@@ -157,6 +165,9 @@ class PairedTraversals(Source):
         # a query's place in selected-frame units: fractional when it falls between selected frames
         query_places = [(layout.query_places[p] - c.start) / c.step for p in query_positions]
         queries = [layout.query[p] for p in query_positions]
+        if c.query_timing != "original" and len(queries) >= 2:
+            shown = retimed_frames(len(queries), c.query_timing, c.seed).tolist()
+            queries, query_places = [queries[k] for k in shown], [query_places[k] for k in shown]
         return self._apply_experiment(references), queries, query_places
 
     def block(self, n_reference: int) -> tuple[int, int]:

@@ -12,11 +12,22 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
+from slamfront.core.retiming import Timing, retimed_positions
 from slamfront.frame import Traversal
 from slamfront.limits import check_limit
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
 
 logger = logging.getLogger(__name__)
+
+
+def equal_distance(along_m: np.ndarray, spacing_m: float) -> np.ndarray:
+    """(k,) indices of the frames kept when a pass is resampled to one frame per ``spacing_m``
+    metres travelled (SMART, Pepperell et al. 2014): the first frame at or past each
+    multiple of ``spacing_m`` of the distance travelled along ``along_m`` (route positions
+    in metres, any direction). A stop keeps one frame; a fast stretch keeps every frame."""
+    travelled = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(along_m)))])
+    marks = np.floor(travelled / spacing_m + 1e-9)
+    return np.flatnonzero(np.concatenate([[True], marks[1:] > marks[:-1]]))
 
 
 class SyntheticWorld(Source):
@@ -27,6 +38,10 @@ class SyntheticWorld(Source):
     illumination, a small viewpoint offset and moving occluders. ``mode: stream`` drives
     the route ``laps`` times in one stream; later laps revisit the first. Frames carry
     RGB, depth, intrinsics and the ground-truth pose; everything is deterministic.
+    ``query_timing`` drives the query (paired) or every second lap (stream) at another
+    pace or backwards (:mod:`slamfront.core.retiming`; backwards, the camera still faces
+    the route's forward direction); frame i of such a pass is at the route position its
+    speed profile reached, and the ground truth follows it.
     """
 
     name = "synthetic"
@@ -59,6 +74,16 @@ class SyntheticWorld(Source):
             False, description="give the query traversal (paired) or the whole stream in a random order (kidnapped robot)"
         )
         shuffle_seed: int = Field(0, description="seed of the shuffled order")
+        query_timing: Timing = Field(
+            "original", description="the query traversal (paired) or laps 2, 4, ... (stream) driven backwards "
+            "(reversed), at half or double speed, at a speed varying 0.6x-1.8x, or stop_and_go (stops drawn from "
+            "seed); original: at the reference's pace"
+        )
+        resample_m: float = Field(
+            0.0, ge=0, description="SMART (Pepperell et al. 2014): every pass keeps one frame per this many metres "
+            "travelled, by its odometry (the poses), so traversals driven at different paces are matched at equal "
+            "distance; 0: every frame (the default: a camera-only user has no odometry)"
+        )
         own_patterns: bool = Field(
             False, description="surface patterns (road, bricks, signs) depend on the world seed too; false: on the place "
             "only, so two worlds share them at one place of the route",
@@ -133,8 +158,21 @@ class SyntheticWorld(Source):
             ))
         return passes
 
+    def pass_positions(self, pass_number: int) -> np.ndarray:
+        """(m,) float route positions, in reference frames, of the frames of a pass (re-timed
+        passes: the query, or every second lap of a stream)."""
+        c = self.config
+        n = c.frames_per_traversal
+        retimed = pass_number == 1 if c.mode == "paired" else pass_number % 2 == 1
+        positions = np.arange(n, dtype=np.float64)
+        if retimed and c.query_timing != "original":
+            positions = retimed_positions(n, c.query_timing, c.seed + pass_number)
+        if c.resample_m > 0:
+            positions = positions[equal_distance(positions * self.step_m, c.resample_m)]
+        return positions
+
     def __len__(self) -> int:
-        return self.config.frames_per_traversal * len(self._passes())
+        return sum(len(self.pass_positions(p)) for p in range(len(self._passes())))
 
     def schedule(self) -> list[tuple[int, int]]:
         """(pass number, frame k of that pass) of each frame, in the order they are given.
@@ -144,7 +182,7 @@ class SyntheticWorld(Source):
         only on (pass, k), never on the order.
         """
         c = self.config
-        order = [(p, k) for p in range(len(self._passes())) for k in range(c.frames_per_traversal)]
+        order = [(p, k) for p in range(len(self._passes())) for k in range(len(self.pass_positions(p)))]
         if not c.shuffle:
             return order
         first = c.frames_per_traversal if c.mode == "paired" else 0
@@ -156,7 +194,9 @@ class SyntheticWorld(Source):
         dt = self.step_m / self.config.speed_mps
         passes = len(self._passes())
         # arrival times keep the unshuffled clock (a minute between passes): strictly increasing
-        arrival = [p * (n * dt + 60.0) + k * dt for p in range(passes) for k in range(n)]
+        lengths = [len(self.pass_positions(p)) for p in range(passes)]
+        starts = np.concatenate([[0.0], np.cumsum([m * dt + 60.0 for m in lengths])])
+        arrival = [starts[p] + k * dt for p in range(passes) for k in range(lengths[p])]
         c = self.config
         logger.info(
             "rendering %d passes of %d frames (%s mode) on a %g m route, world seed %d",
@@ -171,11 +211,14 @@ class SyntheticWorld(Source):
         camera = self.camera
         n = c.frames_per_traversal
         traversal, illumination, lateral, yaw, occluders = self._passes()[pass_number]
-        pose = self.world.pose_at(k * self.step_m, lateral, yaw)
+        # a reversed pass keeps the camera facing the route's forward direction (a vehicle backing
+        # up, or the recording played backwards): views facing the other way are another problem
+        along = float(self.pass_positions(pass_number)[k]) * self.step_m
+        pose = self.world.pose_at(along, lateral, yaw)
         place = pass_number * n + k
         image, depth = self.world.render(
             pose, camera.matrix, camera.width, camera.height, Lighting.of(illumination),
-            occluders_at(c.seed + pass_number, k * self.step_m / c.speed_mps, self.world.route, occluders),
+            occluders_at(c.seed + pass_number, along / c.speed_mps, self.world.route, occluders),
             noise_std=c.noise_std, noise_seed=c.seed * 1_000_003 + place, max_depth_m=c.max_depth_m,
         )
         sequence_index = k if traversal != "stream" else place
@@ -195,7 +238,7 @@ class SyntheticWorld(Source):
         # earlier laps, and the start of its own lap when the lap closes. In a shuffled
         # stream every frame given before it at that place counts: it was not just there.
         reach = int(np.floor(c.revisit_radius_m / self.step_m))
-        ks = np.array([k for _, k in schedule], dtype=np.int64)
+        ks = np.array([int(round(self.pass_positions(p)[k])) for p, k in schedule], dtype=np.int64)
         rows = []
         for frame in range(len(schedule)):
             gap = np.abs(ks[:frame] - ks[frame])
@@ -211,6 +254,7 @@ class SyntheticWorld(Source):
 
     def _paired_truth(self, tolerance: int) -> LoopGroundTruth:
         n = self.config.frames_per_traversal
-        queries = np.arange(n, 2 * n)
-        places = np.array([k for _, k in self.schedule()[n:]], dtype=np.int64)
+        positions = self.pass_positions(1)
+        queries = np.arange(n, n + len(positions))
+        places = np.array([int(round(positions[k])) for _, k in self.schedule()[n:]], dtype=np.int64)
         return LoopGroundTruth.band(queries, places, tolerance, valid=(0, n - 1))

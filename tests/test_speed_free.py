@@ -1,0 +1,139 @@
+"""Speed-free sequence matching: queries re-timed or driven backwards are still matched
+(hierarchical_sequence's cone of speeds, SeqSLAM's paths), and the re-timing itself."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamfront.core.retiming import retimed_frames, retimed_positions
+from slamfront.core.seqslam import path_scores_block, path_scores_reference
+from slamfront.core.sequences import coarse_to_fine_lengths, cone_speeds, refined_speeds
+from slamfront.messages import LoopResult
+from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence, SequenceDecision
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
+from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
+
+# --- re-timing ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("timing", "mean_speed"), [("half", 0.5), ("double", 2.0), ("varying", 1.2),
+                                                    ("reversed", -1.0)])
+def test_retimed_positions_run_at_the_profile_speed_inside_the_route(timing: str, mean_speed: float) -> None:
+    positions = retimed_positions(1000, timing)  # type: ignore[arg-type]
+    assert positions.min() >= 0 and positions.max() <= 999
+    steps = np.diff(positions)
+    assert np.mean(steps) == pytest.approx(mean_speed, rel=0.05)
+    if timing == "varying":
+        assert 0.55 < steps.min() < 0.65 and 1.75 < steps.max() < 1.85
+
+
+def test_stop_and_go_repeats_frames_and_otherwise_runs_at_the_recorded_pace() -> None:
+    frames = retimed_frames(1000, "stop_and_go", seed=3)
+    steps = np.diff(frames)
+    assert set(steps.tolist()) == {0, 1} and (steps == 0).sum() >= 50
+    assert frames[0] == 0 and frames[-1] == 999
+
+
+# --- the speeds a cone search tries ---------------------------------------------------------------------
+
+
+def test_cone_speeds_step_by_one_frame_and_mirror_for_reverse() -> None:
+    forward = cone_speeds(0.5, 2.0, 8, False)
+    assert forward[0] == 0.5 and forward[-1] == 2.0 and np.allclose(np.diff(forward), 1 / 8)
+    both = cone_speeds(0.5, 2.0, 8, True)
+    assert np.allclose(np.sort(both[both < 0]), -forward[::-1])
+
+
+def test_refined_speeds_stay_on_the_settled_side_within_one_coarse_step() -> None:
+    fine = refined_speeds(-1.0, 8, 16, 0.5, 2.0)
+    assert np.all(fine < 0) and np.abs(fine + 1.0).max() <= 1 / 8 + 1e-9 and len(fine) == 5
+    assert coarse_to_fine_lengths(8, 40) == [8, 16, 32, 40]
+
+
+# --- SeqSLAM's paths ---------------------------------------------------------------------------------
+
+
+def test_compiled_path_search_equals_its_numpy_oracle() -> None:
+    columns = np.random.default_rng(0).random((50, 30))
+    scores = path_scores_block(columns, 10, 3, 0.5, 2.0, True)
+    for n in (0, 7, 19):
+        assert np.allclose(scores[n], path_scores_reference(columns[:, n:n + 11], 3, 0.5, 2.0, True))
+
+
+def _difference_matrix(truth: np.ndarray, n_ref: int, seed: int = 0) -> np.ndarray:
+    """(n_ref, Q) random differences, low along the true rows of each query."""
+    d = np.random.default_rng(seed).uniform(1.0, 2.0, (n_ref, len(truth)))
+    d[truth, np.arange(len(truth))] = 0.2
+    return d
+
+
+@pytest.mark.parametrize("timing", ["reversed", "half", "double", "varying"])
+def test_paths_follow_a_retimed_or_reversed_query_that_lines_would_miss(timing: str) -> None:
+    truth = 10 + retimed_frames(180, timing)  # type: ignore[arg-type]
+    truth = truth[:60]
+    d = _difference_matrix(truth, 200)
+    scores = path_scores_block(d, 20, 10, 0.5, 2.0, True)
+    found = np.argmin(scores, axis=1)
+    assert np.abs(found - truth[10:10 + len(found)]).max() <= 2
+
+
+# --- the hierarchical detector ---------------------------------------------------------------------
+
+
+def _run(reference: np.ndarray, query: np.ndarray, **detector):  # type: ignore[no-untyped-def]
+    vectors = np.concatenate([reference, query])
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    outputs = run_stages(vectors, traversals, place_map, HierarchicalSequence(HierarchicalSequence.Config(**detector)))
+    results = {m.frame - len(reference): m for m in outputs if isinstance(m, LoopResult)}
+    return results, [m for m in outputs if isinstance(m, SequenceDecision)]
+
+
+@pytest.mark.parametrize(("timing", "direction"), [("reversed", "reverse"), ("double", "forward"),
+                                                   ("half", "forward")])
+def test_hierarchical_matches_a_retimed_or_reversed_query_and_logs_its_direction(timing: str, direction: str) -> None:
+    reference = route_descriptors(120, 2, seed=3)
+    truth = retimed_frames(len(reference), timing)  # type: ignore[arg-type]
+    query = noisy(reference[truth], 0.1, seed=5)
+    results, decisions = _run(reference, query, sequence_frames=20)
+    answered = [(k, r) for k, r in results.items() if r.match >= 0]
+    right = [r.confidence for k, r in answered if abs(r.match - truth[k]) <= 2]
+    wrong = [r.confidence for k, r in answered if abs(r.match - truth[k]) > 2]
+    assert len(right) >= 0.7 * len(query)
+    accepted_wrong = [c for c in wrong if c >= 0.04]
+    assert len(accepted_wrong) <= 0.05 * len(right)
+    settled = [d.direction for d in decisions if d.confidence > 0]
+    assert settled.count(direction) >= 0.8 * len(settled)
+    # at the map's pace only (the former straight lines) the same query is lost
+    if timing != "half":
+        results, _ = _run(reference, query, sequence_frames=20, speed_search="lines")
+        assert sum(abs(r.match - truth[k]) <= 2 for k, r in results.items() if r.match >= 0) < 0.5 * len(right)
+
+
+# --- sources: re-timed queries keep their ground truth ----------------------------------------------
+
+
+def test_a_paired_source_retimes_its_query_and_the_truth_follows(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from tests.test_paired_sources import _folders, _truth_rows
+    from slamfront_plugins.sources.paired_datasets import PairedFolders
+
+    reversed_ = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="reversed"))
+    _, queries, _ = reversed_.plan
+    assert [q.name for q in queries][:3] == ["019.png", "018.png", "017.png"]
+    assert _truth_rows(reversed_)[0] == [18, 19] and _truth_rows(reversed_)[19] == [0, 1]
+    half = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="half"))
+    assert len(half.plan[1]) == 39 and _truth_rows(half)[5] == [1, 2, 3]
+
+
+def test_the_synthetic_world_drives_its_query_backwards_or_resampled_by_odometry() -> None:
+    from slamfront_plugins.sources.synthetic import SyntheticWorld
+
+    world = SyntheticWorld(SyntheticWorld.Config(frames_per_traversal=60, route_length_m=60, query_timing="reversed"))
+    truth = world.loop_ground_truth()
+    first = truth.matches[truth.indptr[0]:truth.indptr[1]]
+    assert len(world) == 120 and 59 in first.tolist() and 0 not in first.tolist()
+    stops = SyntheticWorld.Config(frames_per_traversal=300, route_length_m=300, query_timing="stop_and_go")
+    assert len(SyntheticWorld(stops).pass_positions(1)) > 300  # stops add frames
+    smart = SyntheticWorld(stops.model_copy(update={"resample_m": 1.0}))
+    assert np.array_equal(smart.pass_positions(1), np.arange(300.0))  # one frame per metre: the stops are gone
