@@ -3,9 +3,9 @@ or a fixed confidence, the ``AcceptThreshold`` message that logs it, and the boo
 of a calibration (the rule itself: :mod:`slamfront.core.operating_point`).
 
 ``accept: auto`` never reads query ground truth. Paired traversals: the detector answers
-reference frames against the rest of the reference outside ``exclusion_frames`` (every such
+reference frames against the rest of the reference outside ``accept_exclusion_frames`` (every such
 answer is wrong), before its first query. A stream: the answers to its first
-``calibration_frames`` frames (before any revisit; none of them is accepted) are the wrong
+``accept_calibration_frames`` frames (before any revisit; none of them is accepted) are the wrong
 ones. The threshold: those wrong confidences' ``1 - false_accept_rate`` quantile.
 """
 
@@ -37,11 +37,11 @@ class AcceptanceConfig(PluginConfig):
         0.01, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through "
         "(chosen on Nordland chunks and synthetic worlds, docs/loop_closure.md)"
     )
-    calibration_frames: int = Field(
+    accept_calibration_frames: int = Field(
         200, ge=1, description="accept: auto in a stream: answers to the first this many frames calibrate the "
         "threshold (no revisit may happen in them; none of them is accepted)"
     )
-    exclusion_frames: int = Field(
+    accept_exclusion_frames: int = Field(
         50, ge=1, description="accept: auto with a reference: reference frames this close to a reference frame "
         "searched against the others are not wrong matches"
     )
@@ -122,11 +122,11 @@ class Acceptance:
 
     def stream_answer(self, position: int, confidence: float) -> bool:
         """A stream's answer to its ``position``-th frame (0-based): gathered as a wrong one while
-        in the first ``calibration_frames``, the threshold set at the first answer after them.
+        in the first ``accept_calibration_frames``, the threshold set at the first answer after them.
         Returns whether it is accepted."""
         if self.calibrated:
             return self.accepts(confidence)
-        if position < self._config.calibration_frames:
+        if position < self._config.accept_calibration_frames:
             self._stream_wrong.append(confidence)
             return False
         self.calibrate(self._stream_wrong, "stream")

@@ -72,3 +72,18 @@ def self_queries(n: int, window: int, most: int) -> np.ndarray:
     if n <= most:
         return np.arange(n, dtype=np.int64)
     return np.unique(np.linspace(0, n - 1, most).round().astype(np.int64))
+
+
+def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, wrong: np.ndarray) -> np.ndarray:
+    """(q,) bool: self-queries whose best wrong match (``wrong``: its distance, per column)
+    is farther than the query's own next or previous frame. Where it is not, the vehicle
+    stood still or came back (a stop longer than the exclusion window): the match may be
+    the same place, so the answer is not known to be wrong and is left out."""
+    rows = np.asarray(rows)
+    position = {int(r): k for k, r in enumerate(rows.tolist())}
+    adjacent = np.full(len(columns), np.inf)
+    for k, c in enumerate(np.asarray(columns).tolist()):
+        for neighbour in (c - 1, c + 1):
+            if neighbour in position:
+                adjacent[k] = min(adjacent[k], float(distances[position[neighbour], k]))
+    return np.asarray(wrong) > adjacent

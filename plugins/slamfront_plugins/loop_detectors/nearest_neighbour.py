@@ -11,7 +11,7 @@ from slamfront import LoopDetector, Plugin, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import pairwise, smallest, to_one
-from slamfront.core.operating_point import exclusion_masked, self_queries, uniqueness_confidence
+from slamfront.core.operating_point import exclusion_masked, moving, self_queries, uniqueness_confidence
 from slamfront.messages import LoopResult, Message
 from slamfront.plugin import global_features, require_global_descriptor
 
@@ -24,8 +24,8 @@ class NearestNeighbour(LoopDetector):
     uniqueness score, ``1 - d_best / d_second``, where ``d_second`` is the best distance
     outside ``uniqueness_window`` frames of the best match, so a match that is much
     better than anywhere else is trusted more. ``accept`` is the operating point: by default
-    calibrated on the reference searched against itself outside ``exclusion_frames`` (or on
-    a stream's first ``calibration_frames``), see :mod:`slamfront.acceptance`.
+    calibrated on the reference searched against itself outside ``accept_exclusion_frames`` (or on
+    a stream's first ``accept_calibration_frames``), see :mod:`slamfront.acceptance`.
     """
 
     name = "nearest_neighbour"
@@ -82,17 +82,18 @@ class NearestNeighbour(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """Every reference frame's best match among the reference frames more than
-        ``exclusion_frames`` away is wrong: its confidences calibrate the threshold."""
+        ``accept_exclusion_frames`` away is wrong: its confidences calibrate the threshold."""
         n = 0 if self._vectors is None else len(self._frames)
-        queries = self_queries(n, self.config.exclusion_frames, 500)
+        queries = self_queries(n, self.config.accept_exclusion_frames, 500)
         if len(queries) == 0:
             self._acceptance.calibrate([], "reference")
             return
         rows = self._vectors.view[:n]  # type: ignore[union-attr]
         distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
-        masked = exclusion_masked(distances, np.arange(n), queries, self.config.exclusion_frames)
-        _, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
-        self._acceptance.calibrate(confidence, "reference")
+        masked = exclusion_masked(distances, np.arange(n), queries, self.config.accept_exclusion_frames)
+        best, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
+        wrong = masked[best, np.arange(len(queries))]
+        self._acceptance.calibrate(confidence[moving(distances, np.arange(n), queries, wrong)], "reference")
 
     def _search(self, frame: int, vector: np.ndarray, stream: bool) -> LoopResult:
         usable = len(self._frames) - (self.config.exclude_recent if stream else 0)

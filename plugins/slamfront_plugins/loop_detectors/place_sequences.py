@@ -27,7 +27,7 @@ from slamfront.plugin import SearchablePlaceMap
 
 CALIBRATION_QUERY_FRAMES = 600
 """accept: auto with a reference: at most this many reference frames (its second half, at
-most) are answered against the reference before them, outside ``exclusion_frames``."""
+most) are answered against the reference before them, outside ``accept_exclusion_frames``."""
 
 
 class PlaceSequenceConfig(AcceptanceConfig):
@@ -177,14 +177,14 @@ class PlaceSequenceDetector(LoopDetector):
     def _calibrate_on_reference(self) -> None:
         """accept: auto, paired traversals: this detector (a copy, same parameters) answers the
         reference's last frames (its second half, at most ``CALIBRATION_QUERY_FRAMES``) as queries
-        against the reference places ending ``exclusion_frames`` or more before them: a
+        against the reference places ending ``accept_exclusion_frames`` or more before them: a
         traversal does not revisit itself, so every answer is wrong, and their confidences
         set the threshold."""
         pm = self.place_map
         offsets = pm.place_offsets()
         n = int(offsets[-1])
         start = n - min(n // 2, CALIBRATION_QUERY_FRAMES)
-        horizon = int(np.searchsorted(offsets, start - self.config.exclusion_frames, side="right")) - 1
+        horizon = int(np.searchsorted(offsets, start - self.config.accept_exclusion_frames, side="right")) - 1
         wrong: list[float] = []
         if horizon > 0 and start < n:
             copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
@@ -223,7 +223,7 @@ class PlaceSequenceDetector(LoopDetector):
 
     def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray) -> LoopResult:
         """The one place an answer is accepted: at the operating point (in a stream, answers to
-        its first ``calibration_frames`` frames calibrate it and are not accepted)."""
+        its first ``accept_calibration_frames`` frames calibrate it and are not accepted)."""
         accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
                     else self._acceptance.accepts(confidence))
         return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)

@@ -105,19 +105,19 @@ class _SequenceDetector(LoopDetector):
 
     def _self_columns(self, positions: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
         """As :meth:`_columns` for reference frames (by position) searched against the
-        reference, with the rows within ``exclusion_frames`` of each out of reach."""
+        reference, with the rows within ``accept_exclusion_frames`` of each out of reach."""
         raise NotImplementedError
 
     def _band(self, positions: np.ndarray) -> np.ndarray:
-        """(R, q) bool: reference rows within ``exclusion_frames`` of each reference column."""
+        """(R, q) bool: reference rows within ``accept_exclusion_frames`` of each reference column."""
         assert self._references is not None
         rows = np.arange(len(self._references))
-        return np.abs(rows[:, None] - positions[None, :]) <= self.config.exclusion_frames
+        return np.abs(rows[:, None] - positions[None, :]) <= self.config.accept_exclusion_frames
 
     # -- the operating point -------------------------------------------------------------------
 
     def _calibrate_on_reference(self) -> None:
-        """accept: auto: answer reference frames from the reference outside ``exclusion_frames``
+        """accept: auto: answer reference frames from the reference outside ``accept_exclusion_frames``
         (every such answer is wrong), through the same difference matrix, enhancement and
         sequence search as the queries; their confidences set the threshold."""
         c = self.config
@@ -125,7 +125,7 @@ class _SequenceDetector(LoopDetector):
         n = 0 if self._references is None else len(self._references)
         wrong: list[float] = []
         lo, hi = half, n - half  # reference positions with a full window
-        if self._too_few_references() is None and hi - lo > 0 and n > 2 * c.exclusion_frames + c.ds:
+        if self._too_few_references() is None and hi - lo > 0 and n > 2 * c.accept_exclusion_frames + c.ds:
             size = min(CALIBRATION_BLOCK_QUERIES, hi - lo)
             starts = np.unique(np.linspace(lo, hi - size, CALIBRATION_BLOCKS).round().astype(np.int64))
             blocks = [self._self_columns(np.arange(start - half, start + size + half)) for start in starts]
