@@ -48,6 +48,7 @@ class NearestNeighbour(LoopDetector):
         self._n_distances = 0
         self._metric = "l2"
         self._acceptance = Acceptance(self.config, self.name)
+        self._n_calibration_distances = 0
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         require_global_descriptor(stages)
@@ -90,6 +91,7 @@ class NearestNeighbour(LoopDetector):
             return
         rows = self._vectors.view[:n]  # type: ignore[union-attr]
         distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
+        self._n_calibration_distances = distances.size
         masked = exclusion_masked(distances, np.arange(n), queries, self.config.accept_exclusion_frames)
         best, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
         wrong = masked[best, np.arange(len(queries))]
@@ -121,6 +123,7 @@ class NearestNeighbour(LoopDetector):
             "n_searches": self._n_searches,
             "n_places_reference": self._n_reference,
             "n_places_query": self._n_query,
-            "n_distances": self._n_distances,
+            "n_distances": self._n_distances + self._n_calibration_distances,
+            "n_distances_calibration": self._n_calibration_distances,
             **self._acceptance.statistics(),
         }

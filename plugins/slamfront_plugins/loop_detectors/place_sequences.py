@@ -79,6 +79,7 @@ class PlaceSequenceDetector(LoopDetector):
         self._stream = False
         self._horizon: int | None = None
         """Calibration only: map places at positions from this one on are out of reach."""
+        self._calibration_distances = (0, 0)  # (level-1 search, sequences) computed by the calibration
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         place_map = stages.get("place_map")
@@ -186,6 +187,7 @@ class PlaceSequenceDetector(LoopDetector):
         start = n - min(n // 2, CALIBRATION_QUERY_FRAMES)
         horizon = int(np.searchsorted(offsets, start - self.config.accept_exclusion_frames, side="right")) - 1
         wrong: list[float] = []
+        searched = pm.search_distances
         if horizon > 0 and start < n:
             copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
             copy._map, copy._horizon = pm, horizon
@@ -197,6 +199,7 @@ class PlaceSequenceDetector(LoopDetector):
                 previous = place
             out += copy._finish()
             wrong = [m.confidence for m in out if isinstance(m, LoopResult) and m.match >= 0]
+            self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
         self._acceptance.calibrate(wrong, "reference")
 
     # --- level 1 --------------------------------------------------------------------------
@@ -248,13 +251,16 @@ class PlaceSequenceDetector(LoopDetector):
         return 0
 
     def statistics(self) -> dict[str, float | int]:
-        search = self._map.search_distances if self._map is not None else 0
+        # the calibration's distances count in n_distances (the map counts its level-1 searches too)
+        calibration = sum(self._calibration_distances)
+        search = (self._map.search_distances if self._map is not None else 0) - self._calibration_distances[0]
         sequences = self._sequence_distances()
         stats: dict[str, float | int] = {
+            "n_distances_calibration": calibration,
             "n_searches": self._counts.get("searches", 0),
             "n_query_sequences": self._n_iterations,
             "n_query_frames": self._query_frames,
-            "n_distances": search + sequences,
+            "n_distances": search + sequences + calibration,
             "n_distances_search": search,
             "n_distances_sequences": sequences,
         }

@@ -91,6 +91,7 @@ class _SequenceDetector(LoopDetector):
         self._pending: deque[int] = deque()
         self._n_searches = 0
         self._acceptance = Acceptance(self.config, self.name)
+        self._calibration_distances = 0
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         if not getattr(stages["descriptor"], "produces_global", False):
@@ -129,6 +130,7 @@ class _SequenceDetector(LoopDetector):
             size = min(CALIBRATION_BLOCK_QUERIES, hi - lo)
             starts = np.unique(np.linspace(lo, hi - size, CALIBRATION_BLOCKS).round().astype(np.int64))
             blocks = [self._self_columns(np.arange(start - half, start + size + half)) for start in starts]
+            self._calibration_distances = n * sum(columns.shape[1] for columns, _ in blocks)
             offset = enhanced_lower_bound(c.contrast_window)
             if c.score_offset == "global_min":
                 offset = min(float(columns.min()) for columns, _ in blocks)
@@ -301,7 +303,8 @@ class _SequenceDetector(LoopDetector):
             "n_searches": self._n_searches,
             "n_places_reference": len(self._reference_frames),
             "n_places_query": len(self._query_frames),
-            "n_distances": self._distance_count(),
+            "n_distances": self._distance_count() + self._calibration_distances,
+            "n_distances_calibration": self._calibration_distances,
             **self._acceptance.statistics(),
         }
 
