@@ -40,6 +40,22 @@ def threshold_at_false_accept_rate(wrong: np.ndarray, rate: float, margin: float
     return float(min(1.0, np.nextafter(above, np.inf) * margin))
 
 
+def exclusion_window(n: int, frames: int) -> int:
+    """The temporal exclusion window for a traversal of ``n`` frames: ``frames``, but at most a
+    tenth of the traversal (at least 1), so a short reference (a room's 111 frames) keeps
+    most of itself as wrong candidates."""
+    return max(1, min(frames, n // 10))
+
+
+def self_split(n: int, frames: int, most: int) -> tuple[int, int]:
+    """Paired traversals searched against themselves by a detector that keeps a map growing
+    in time: the last third of the ``n`` frames (at most ``most``) are the queries, from
+    position ``start``; the map is the frames before ``horizon`` = ``start`` minus the
+    exclusion window. Returns ``(start, horizon)``."""
+    start = n - min(n // 3, most)
+    return start, start - exclusion_window(n, frames)
+
+
 def exclusion_masked(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, window: int) -> np.ndarray:
     """``distances`` (rows x columns of one traversal against itself) with every entry
     whose row and column frame positions are at most ``window`` apart set to +inf: what
@@ -74,11 +90,12 @@ def self_queries(n: int, window: int, most: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, most).round().astype(np.int64))
 
 
-def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, wrong: np.ndarray) -> np.ndarray:
-    """(q,) bool: self-queries whose best wrong match (``wrong``: its distance, per column)
-    is farther than the query's own next or previous frame. Where it is not, the vehicle
-    stood still or came back (a stop longer than the exclusion window): the match may be
-    the same place, so the answer is not known to be wrong and is left out."""
+def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, still: float = 0.1) -> np.ndarray:
+    """(q,) bool: self-queries (``columns``, frame positions; ``distances`` rows x columns of
+    the traversal against itself) taken while the vehicle moved: the distance to the frame's
+    own next or previous frame is above ``still`` times the median such distance. A frame
+    at a stop longer than the exclusion window can pair with the same place, so its answer
+    is not known to be wrong and is left out."""
     rows = np.asarray(rows)
     position = {int(r): k for k, r in enumerate(rows.tolist())}
     adjacent = np.full(len(columns), np.inf)
@@ -86,4 +103,7 @@ def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, wrong: 
         for neighbour in (c - 1, c + 1):
             if neighbour in position:
                 adjacent[k] = min(adjacent[k], float(distances[position[neighbour], k]))
-    return np.asarray(wrong) > adjacent
+    finite = adjacent[np.isfinite(adjacent)]
+    if len(finite) == 0:
+        return np.ones(len(columns), dtype=bool)
+    return adjacent > still * float(np.median(finite))

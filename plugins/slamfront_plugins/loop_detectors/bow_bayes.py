@@ -16,6 +16,7 @@ from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
+from slamfront.core.operating_point import self_split
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
 from slamfront.core.vocabulary import (
     BY_ND_HIGH,
@@ -384,16 +385,15 @@ class BowBayes(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """accept: auto, paired traversals: the Bayes filter (a fresh one, same parameters) runs
-        over the reference's last places (its second half, at most 600) against the reference
-        places made ``accept_exclusion_frames`` or more before them: every answer is wrong."""
+        over the reference's last places (its last third, at most 600 frames) against the
+        reference places made ``accept_exclusion_frames`` (at most a tenth of it) or more before them: every answer is wrong."""
         reference = sorted(self._places)
         if not reference:
             self._acceptance.calibrate([], "reference")
             return
         first_frame = self._places[reference[0]].frames[0]
         n = self._places[reference[-1]].frames[-1] - first_frame + 1
-        start = first_frame + n - min(n // 2, 600)
-        horizon = start - self.config.accept_exclusion_frames
+        start, horizon = (first_frame + p for p in self_split(n, self.config.accept_exclusion_frames, 600))
         working = self._memory.working()
         hypotheses = np.asarray([p for p in working.tolist() if self._places[p].frames[-1] < horizon], dtype=np.int64)
         bayes = BayesFilter(self._filter.parameters)

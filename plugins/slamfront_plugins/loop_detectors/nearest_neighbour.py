@@ -11,7 +11,13 @@ from slamfront import LoopDetector, Plugin, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import pairwise, smallest, to_one
-from slamfront.core.operating_point import exclusion_masked, moving, self_queries, uniqueness_confidence
+from slamfront.core.operating_point import (
+    exclusion_masked,
+    exclusion_window,
+    moving,
+    self_queries,
+    uniqueness_confidence,
+)
 from slamfront.messages import LoopResult, Message
 from slamfront.plugin import global_features, require_global_descriptor
 
@@ -33,6 +39,12 @@ class NearestNeighbour(LoopDetector):
 
     class Config(AcceptanceConfig):
         legacy_accept_key = "threshold"
+
+        false_accept_rate: float = Field(
+            0.0, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through; "
+            "0: above every wrong answer on the reference (at 0.01 a chunk of Nordland, 1127-1772, let wrong answers "
+            "through: precision 0.915)"
+        )
 
         uniqueness_window: int = Field(10, ge=0, description="frames around the best match ignored for d_second")
         exclude_recent: int = Field(50, ge=0, description="stream mode: skip this many most recent frames")
@@ -85,19 +97,23 @@ class NearestNeighbour(LoopDetector):
         """Every reference frame's best match among the reference frames more than
         ``accept_exclusion_frames`` away is wrong: its confidences calibrate the threshold."""
         n = 0 if self._vectors is None else len(self._frames)
-        queries = self_queries(n, self.config.accept_exclusion_frames, 500)
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
+        queries = self_queries(n, window, 500)
         if len(queries) == 0:
             self._acceptance.calibrate([], "reference")
             return
         rows = self._vectors.view[:n]  # type: ignore[union-attr]
+        queries = queries[np.any(rows[queries] != 0, axis=1)]  # featureless frames get no answer
         distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
         self._n_calibration_distances = distances.size
-        masked = exclusion_masked(distances, np.arange(n), queries, self.config.accept_exclusion_frames)
-        best, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
-        wrong = masked[best, np.arange(len(queries))]
-        self._acceptance.calibrate(confidence[moving(distances, np.arange(n), queries, wrong)], "reference")
+        masked = exclusion_masked(distances, np.arange(n), queries, window)
+        _, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
+        self._acceptance.calibrate(confidence[moving(distances, np.arange(n), queries)], "reference")
 
     def _search(self, frame: int, vector: np.ndarray, stream: bool) -> LoopResult:
+        if not np.any(vector):  # featureless (a black or blank frame): equally near every other one
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
+                              reason="featureless query frame (all-zero descriptor)")
         usable = len(self._frames) - (self.config.exclude_recent if stream else 0)
         if self._vectors is None or usable < 1:
             return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="map too small")

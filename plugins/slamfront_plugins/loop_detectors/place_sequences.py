@@ -22,6 +22,7 @@ from pydantic import Field
 
 from slamfront import LoopDetector, Plugin, PluginError, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
+from slamfront.core.operating_point import exclusion_window
 from slamfront.messages import LoopResult, Message, PlaceAssignment
 from slamfront.plugin import SearchablePlaceMap
 
@@ -177,29 +178,37 @@ class PlaceSequenceDetector(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """accept: auto, paired traversals: this detector (a copy, same parameters) answers the
-        reference's last frames (its second half, at most ``CALIBRATION_QUERY_FRAMES``) as queries
-        against the reference places ending ``accept_exclusion_frames`` or more before them: a
-        traversal does not revisit itself, so every answer is wrong, and their confidences
-        set the threshold."""
+        reference's last frames (its last two thirds, at most ``CALIBRATION_QUERY_FRAMES``) as
+        queries, as a stream, against the reference places ending before the frames it compares
+        (``sequence_frames``) and the exclusion window (``accept_exclusion_frames``, at most a
+        tenth of the reference): a traversal does not revisit itself, so every answer more than
+        two windows away is wrong, and their confidences set the threshold."""
         pm = self.place_map
         offsets = pm.place_offsets()
         n = int(offsets[-1])
-        start = n - min(n // 2, CALIBRATION_QUERY_FRAMES)
-        horizon = int(np.searchsorted(offsets, start - self.config.accept_exclusion_frames, side="right")) - 1
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
+        start = n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)
+        reach = window + int(getattr(self.config, "sequence_frames", 0) or 0)
         wrong: list[float] = []
         searched = pm.search_distances
-        if horizon > 0 and start < n:
-            copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
-            copy._map, copy._horizon = pm, horizon
-            out: list[Message] = []
-            previous = None
-            for frame in pm.map_frames_at(np.arange(start, n)).tolist():
-                place = pm.place_of(frame)
-                out += copy._placed(frame, "query", place, place != previous)
-                previous = place
-            out += copy._finish()
-            wrong = [m.confidence for m in out if isinstance(m, LoopResult) and m.match >= 0]
-            self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
+        copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
+        copy._map = pm
+        out: list[Message] = []
+        previous = None
+        frames = pm.map_frames_at(np.arange(n)).tolist()
+        position = {f: k for k, f in enumerate(frames)}
+        for k in range(start, n):
+            # the map in reach ends the compared window and the exclusion window before this frame
+            copy._horizon = max(0, int(np.searchsorted(offsets, k - reach, side="right")) - 1)
+            place = pm.place_of(frames[k])
+            out += copy._placed(frames[k], "query", place, place != previous)
+            previous = place
+        out += copy._finish()
+        # an answer within two windows of its frame may be the query's own stretch seen just
+        # before: only those farther away are known to be wrong
+        wrong = [m.confidence for m in out if isinstance(m, LoopResult) and m.match >= 0
+                 and position[m.frame] - position.get(m.match, -n) > 2 * window]
+        self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
         self._acceptance.calibrate(wrong, "reference")
 
     # --- level 1 --------------------------------------------------------------------------

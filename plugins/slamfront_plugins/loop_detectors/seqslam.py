@@ -19,6 +19,7 @@ from slamfront import LoopDetector, Plugin, PluginError, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import smallest
+from slamfront.core.operating_point import exclusion_window
 from slamfront.core.seqslam import (
     best_match,
     difference_columns,
@@ -113,7 +114,8 @@ class _SequenceDetector(LoopDetector):
         """(R, q) bool: reference rows within ``accept_exclusion_frames`` of each reference column."""
         assert self._references is not None
         rows = np.arange(len(self._references))
-        return np.abs(rows[:, None] - positions[None, :]) <= self.config.accept_exclusion_frames
+        window = exclusion_window(len(rows), self.config.accept_exclusion_frames)
+        return np.abs(rows[:, None] - positions[None, :]) <= window
 
     # -- the operating point -------------------------------------------------------------------
 
@@ -126,7 +128,7 @@ class _SequenceDetector(LoopDetector):
         n = 0 if self._references is None else len(self._references)
         wrong: list[float] = []
         lo, hi = half, n - half  # reference positions with a full window
-        if self._too_few_references() is None and hi - lo > 0 and n > 2 * c.accept_exclusion_frames + c.ds:
+        if self._too_few_references() is None and hi - lo > 0 and n > 2 * exclusion_window(n, c.accept_exclusion_frames) + c.ds:
             size = min(CALIBRATION_BLOCK_QUERIES, hi - lo)
             starts = np.unique(np.linspace(lo, hi - size, CALIBRATION_BLOCKS).round().astype(np.int64))
             blocks = [self._self_columns(np.arange(start - half, start + size + half)) for start in starts]
