@@ -107,6 +107,11 @@ class BowBayes(LoopDetector):
     requires = ("descriptor",)
 
     class Config(AcceptanceConfig):
+        false_accept_rate: float = Field(
+            0.0, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through; "
+            "0: above every wrong answer on the reference or a stream's first frames (at 0.01 two Nordland chunks, "
+            "563-1208 and 1690-2335, let wrong answers through)"
+        )
         vocabulary_update: UpdateRule = Field(
             "greedy", description="greedy: Wang et al. 2017's rule (T_ND1/T_ND2/T_NNDR, largest ND first); nndr: RTAB-Map's"
         )
