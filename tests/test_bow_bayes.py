@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from slamfront.acceptance import AcceptThreshold
 from slamfront.core.loops import LoopGroundTruth, precision_recall
 from slamfront.core.memory import LinearTimeModel
 from slamfront.errors import PluginError
@@ -17,7 +18,6 @@ from slamfront.plugin import StageInputs
 from slamfront_plugins.descriptors.downsampled import DownsampledImage
 from slamfront_plugins.descriptors.local_features import LocalFeaturesDescriptor
 from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
-from slamfront.acceptance import AcceptThreshold
 from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 
 IMAGE = np.zeros((4, 4), np.uint8)

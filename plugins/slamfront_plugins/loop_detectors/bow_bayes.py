@@ -16,8 +16,8 @@ from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
-from slamfront.core.operating_point import self_split
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
+from slamfront.core.operating_point import self_split
 from slamfront.core.vocabulary import (
     BY_ND_HIGH,
     BY_RATIO,

@@ -64,7 +64,7 @@ class PlaceSequenceDetector(LoopDetector):
 
     Config = PlaceSequenceConfig
 
-    def __init__(self, config: PluginConfig | None = None) -> None:
+    def __init__(self, config: PlaceSequenceConfig | None = None) -> None:
         super().__init__(config)
         self._map: SearchablePlaceMap | None = None
         self._awaiting: deque[tuple[int, str]] = deque()  # (frame, traversal) of query frames not placed yet
