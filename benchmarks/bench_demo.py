@@ -82,7 +82,7 @@ def main() -> None:
         "nothing was tuned on these numbers.",
         table(headers, rows + summary),
         "Detector P/R: precision and recall of the loop closures the hierarchical sequence detector "
-        "accepts at its own operating point (its `accept_confidence`). Verified: those the back end's PnP on "
+        "accepts at its own operating point (`accept: auto`, calibrated on the stream's first 200 frames). Verified: those the back end's PnP on "
         "depth confirmed and added to the pose graph (verified R: their recall). ATE after a rigid "
         "alignment; drift: position error of the last frame relative to the first, per distance driven.",
     ])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from slamfront.acceptance import AcceptThreshold
 from slamfront.core.loops import LoopGroundTruth, precision_recall
 from slamfront.core.memory import LinearTimeModel
 from slamfront.errors import PluginError
@@ -44,7 +45,9 @@ class FeatureWorld:
 
 
 def _config(**params: object) -> BowBayes.Config:
-    base: dict[str, object] = {"nd_low": 0.5, "nd_high": 2.0, "stm_size": 5, "time_budget_s": 0.0}
+    # accept 0.89: Wang et al. 2017's T_loop = 0.11 (these tests are about the filter; accept: auto's own test
+    # is test_auto_accept_calibrates_on_the_first_lap)
+    base: dict[str, object] = {"nd_low": 0.5, "nd_high": 2.0, "stm_size": 5, "time_budget_s": 0.0, "accept": 0.89}
     base.update(params)
     return BowBayes.Config(**base)
 
@@ -76,6 +79,22 @@ def test_revisits_of_a_stream_are_found_at_full_precision(rule: str) -> None:
     accepted = np.array([r.accepted for r in results])
     assert accepted[80:].sum() >= 60 and not accepted[:80].any()  # lap 1 never closes a loop
     assert np.all(correct[accepted])
+
+
+def test_auto_accept_calibrates_on_the_first_lap() -> None:
+    world = FeatureWorld(80)
+    detector = BowBayes(_config(accept="auto", accept_calibration_frames=80))
+    outputs = [m for index, d in world.stream(laps=2) for m in _process(detector, index, d)]
+    outputs += list(detector.finish())
+    results = [m for m in outputs if isinstance(m, LoopResult)]
+    thresholds = [m for m in outputs if isinstance(m, AcceptThreshold)]
+    assert len(thresholds) == 1 and thresholds[0].auto and thresholds[0].source == "stream"
+    assert thresholds[0].n_wrong > 40  # the first lap's answers (no revisit possible there)
+    truth = LoopGroundTruth.band(np.arange(160), np.r_[np.full(80, -1), np.arange(80)], 2, valid=(0, 79))
+    accepted = np.array([r.accepted for r in results])
+    correct = truth.is_correct(np.arange(160), np.array([r.match for r in results]))
+    assert not accepted[:80].any() and accepted[80:].sum() >= 40 and np.all(correct[accepted])
+    assert detector.statistics()["accept_threshold"] == thresholds[0].threshold
 
 
 def test_greedy_quantises_closer_than_nndr_on_the_same_frames() -> None:

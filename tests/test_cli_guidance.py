@@ -31,9 +31,9 @@ from tests.test_cli import _one_line_error
         ("stage key", "descriptor.plugn=x", "descriptor.plugn: unknown key; did you mean 'plugin'?"),
         (
             "plugin param",
-            "loop_detector.params.treshold=0.3",
-            "loop_detector.params.treshold: unknown parameter of the nearest_neighbour loop_detector; "
-            "did you mean 'threshold'?",
+            "loop_detector.params.acept=0.3",
+            "loop_detector.params.acept: unknown parameter of the nearest_neighbour loop_detector; "
+            "did you mean 'accept'?",
         ),
         (
             "plugin param typed short",
@@ -169,8 +169,8 @@ def _complete(line: str, tmp_path: Path) -> list[str]:
 def test_shell_completion(tmp_path: Path) -> None:
     assert "run" in _complete("slamfront ru", tmp_path)
     assert "demo" in _complete("slamfront run de", tmp_path)
-    assert _complete("slamfront run paired_demo --set loop_detector.params.thr", tmp_path) == [
-        "loop_detector.params.threshold="
+    assert _complete("slamfront run paired_demo --set loop_detector.params.uniq", tmp_path) == [
+        "loop_detector.params.uniqueness_window="
     ]
     assert {"log.images=", "log.image_max_width=", "log.image_format="} <= set(
         _complete("slamfront run demo --set log.im", tmp_path)

@@ -23,6 +23,7 @@ SMALL = [  # a shorter street at the demo's 1.5 m per frame and image size
     "--set", "source.params.frames_per_traversal=80", "--set", "source.params.route_length_m=120",
     "--set", "loop_detector.params.exclude_recent_places=5",
     "--set", "place_map.params.calibration_frames=80",  # nu from the first lap, as the demo's 200
+    "--set", "loop_detector.params.accept_calibration_frames=80",  # and the operating point
 ]
 
 

@@ -32,9 +32,9 @@ def test_override_errors_name_the_item() -> None:
 
 def test_invalid_param_names_stage_and_field(write_recipe) -> None:
     recipe = parse_recipe(
-        apply_overrides(small_synthetic_recipe(), ["loop_detector.params.threshold=2"]), "r.yaml"
+        apply_overrides(small_synthetic_recipe(), ["loop_detector.params.accept=2"]), "r.yaml"
     )
-    with pytest.raises(RecipeError, match=r"r.yaml: loop_detector.params.threshold: .*less than or equal to 1"):
+    with pytest.raises(RecipeError, match=r"r.yaml: loop_detector.params.accept: .*confidence in \[0, 1\] \(got 2\)"):
         build_pipeline(recipe, "r.yaml")
 
 

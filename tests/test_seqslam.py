@@ -147,8 +147,8 @@ def _feed(detector, references: np.ndarray, queries: np.ndarray) -> list[LoopRes
     for index, (vector, kind) in enumerate(zip([*references, *queries], traversal)):
         frame = Frame(index=index, timestamp=float(index), image=np.zeros((2, 2), np.uint8), traversal=kind)
         inputs = StageInputs(frame=frame, outputs={"descriptor": [Features(frame=index, vector=vector)]})
-        results += detector.process(inputs)
-    return results + list(detector.finish())
+        results += [m for m in detector.process(inputs) if isinstance(m, LoopResult)]
+    return results + [m for m in detector.finish() if isinstance(m, LoopResult)]
 
 
 def _route(n: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -102,7 +102,7 @@ def test_result_cells_and_dotted_metrics() -> None:
         ({"recipe": "no_such_recipe"}, "recipe: no such recipe 'no_such_recipe'"),
         ({"grid": {"loop_detector.params.threshold": [0.1, 2.0]}},
          "run 'small threshold=2.0' (", ),
-        ({"grid": {"loop_detector.params.treshold": [0.1]}}, "loop_detector.params.treshold: unknown parameter of the nearest_neighbour loop_detector; did you mean 'threshold'?"),
+        ({"grid": {"loop_detector.params.acept": [0.1]}}, "loop_detector.params.acept: unknown parameter of the nearest_neighbour loop_detector; did you mean 'accept'?"),
         ({"variants": {"a": {}, "b": {}}}, "resolve to the same recipe"),
     ],
 )
@@ -125,9 +125,9 @@ def test_bad_sweep_files(cli, tmp_path: Path) -> None:
 
 
 def test_invalid_param_names_the_run_and_field(cli, tmp_path: Path) -> None:
-    path = write_sweep(tmp_path, {"grid": {"loop_detector.params.threshold": [0.1, 2.0]}})
+    path = write_sweep(tmp_path, {"grid": {"loop_detector.params.accept": [0.1, 2.0]}})
     line = _one_line_error(*cli("sweep", path, "--dry-run")[::2])
-    assert "loop_detector.params.threshold: Input should be less than or equal to 1 (got 2.0)" in line
+    assert "loop_detector.params.accept: Value error, accept must be auto or a confidence in [0, 1] (got 2.0)" in line
 
 
 @pytest.mark.parametrize("path", sorted(sweeps_dir().glob("*.yaml")), ids=lambda p: p.stem)

@@ -33,6 +33,10 @@ from slamfront.report.html import write_html
 COMPARED_METRICS = (
     "recall_at_100p",
     "auc_pr",
+    "precision_at_operating_point",
+    "recall_at_operating_point",
+    "n_accepted",
+    "accept_threshold",
     "recall_at_100p_zeta1",
     "auc_pr_zeta1",
     "recall_at_1",
@@ -134,6 +138,8 @@ def _write_report(rows: list[dict[str, Any]], figures: list[Path], out_dir: Path
         "",
         "Each method is one recipe, run through the same harness and scored against the same "
         "ground truth (`recall_at_100p`/`auc_pr` at the source's tolerance, `_zeta1` at zeta = 1). "
+        "`precision_at_operating_point`/`recall_at_operating_point`: of the `n_accepted` answers each detector "
+        "accepts at its own threshold (`accept_threshold`), what a SLAM back end would consume. "
         "Runs and their logs are in `runs/` (each run's report is linked in the last column; "
         "[report.md](report.md) is the campaign's view); `results.csv` has the same numbers.",
         "",

@@ -49,7 +49,7 @@ def read_pr_curve(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 _PER_TOLERANCE = ("recall_at_100p", "auc_pr", "n_queries_with_true_match", "threshold_at_100p",
-                  "precision_at_operating_point", "recall_at_operating_point", "correct_answer_ceiling")
+                  "precision_at_operating_point", "recall_at_operating_point", "n_accepted", "correct_answer_ceiling")
 
 
 @dataclass
@@ -105,8 +105,10 @@ def score_loops(
         # correct answer is more confident than every wrong one
         "correct_answer_ceiling": int(np.sum(answered & correct)) / max(int(positives.sum()), 1),
         "answered_of_answerable": int(np.sum(answered & positives)) / max(int(positives.sum()), 1),
+        # the closures a SLAM back end would consume: those the detector accepts at its own threshold
         "precision_at_operating_point": op_tp / max(int(op_accepted.sum()), 1),
         "recall_at_operating_point": op_tp / max(int(positives.sum()), 1),
+        "n_accepted": int(op_accepted.sum()),
     }
     candidates = [r.candidates for r in results]
     if any(c is not None for c in candidates):

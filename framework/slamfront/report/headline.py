@@ -25,7 +25,13 @@ def headline(metrics: dict[str, Any]) -> list[str]:
     if _number(m, "recall_at_100p", "auc_pr"):
         line = f"loop closure: recall {m['recall_at_100p']:.3f} at 100 % precision, AUC-PR {m['auc_pr']:.3f}"
         if _number(m, "precision_at_operating_point", "recall_at_operating_point"):
-            line += (f"; the detector's accepted answers: precision {m['precision_at_operating_point']:.3f}, "
+            line += "; at the detector's operating point"
+            if _number(m, "accept_threshold"):
+                how = "calibrated" if m.get("accept_auto") else "given"
+                line += f" (confidence >= {m['accept_threshold']:.3g}, {how})"
+            if _number(m, "n_accepted"):
+                line += f" it accepts {m['n_accepted']} answers:"
+            line += (f" precision {m['precision_at_operating_point']:.3f}, "
                      f"recall {m['recall_at_operating_point']:.3f}")
         lines.append(line)
     if _number(m, "n_loop_constraints_added", "n_loop_constraints_added_false"):

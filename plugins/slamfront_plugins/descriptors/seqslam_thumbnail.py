@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -17,11 +18,14 @@ cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import 
 
 
 class SeqSlamThumbnail(Descriptor):
-    """OpenSeqSLAM's image preprocessing: grey, resize (MATLAB's antialiased Lanczos-3), patch normalisation.
+    """OpenSeqSLAM's image preprocessing: grey, resize, patch normalisation.
 
-    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8); Rodrigues 2019 used 32x32.
-    The resize is MATLAB ``imresize(..., 'lanczos3')`` as OpenSeqSLAM calls it, which
-    low-passes before shrinking (:func:`slamfront.core.thumbnail.imresize`). An image
+    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8; Rodrigues 2019 used 32x32), but
+    the resampling. ``resample: matlab`` is MATLAB ``imresize(..., 'lanczos3')`` as
+    OpenSeqSLAM calls it, which low-passes before shrinking
+    (:func:`slamfront.core.thumbnail.imresize`; the ``nordland_openseqslam`` preset);
+    the default was chosen on Nordland chunks and synthetic worlds at two image sizes
+    (docs/loop_closure.md, "Thumbnail resampling"). An image
     already of the target size is not resampled (OpenSeqSLAM reads Nordland's 64x32
     images as they are). The vector holds the normalised pixel values as uint8,
     compared by mean absolute difference (``l1``).
@@ -35,6 +39,11 @@ class SeqSlamThumbnail(Descriptor):
         height: int = Field(32, ge=8, description="thumbnail height (OpenSeqSLAM 32, Rodrigues 2019: 32)")
         patch_size: int = Field(8, ge=2, description="patch side for normalisation")
         normalise: bool = Field(True, description="patch normalisation on (OpenSeqSLAM default) or off")
+        resample: Literal["matlab", "lanczos4", "area"] = Field(
+            "lanczos4", description="matlab: MATLAB imresize's antialiased Lanczos-3, as OpenSeqSLAM; lanczos4: "
+            "OpenCV's Lanczos-4 without a low-pass; area: OpenCV's pixel-area average (default chosen on Nordland "
+            "chunks and synthetic worlds at 320x240 and 160x120, docs/loop_closure.md)"
+        )
 
         @model_validator(mode="after")
         def _patch_fits(self) -> SeqSlamThumbnail.Config:
@@ -47,7 +56,11 @@ class SeqSlamThumbnail(Descriptor):
         c = self.config
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         if grey.shape != (c.height, c.width):
-            grey = imresize(grey, c.height, c.width)
+            if c.resample == "matlab":
+                grey = imresize(grey, c.height, c.width)
+            else:
+                flag = cv2.INTER_LANCZOS4 if c.resample == "lanczos4" else cv2.INTER_AREA
+                grey = cv2.resize(grey, (c.width, c.height), interpolation=flag)
         if c.normalise:
             grey = patch_normalise(grey, c.patch_size)
         return np.ascontiguousarray(grey).ravel()

@@ -11,11 +11,13 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront import LoopDetector, Plugin, PluginError, StageInputs
+from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
+from slamfront.core.operating_point import self_split
 from slamfront.core.vocabulary import (
     BY_ND_HIGH,
     BY_RATIO,
@@ -104,7 +106,12 @@ class BowBayes(LoopDetector):
     name = "bow_bayes"
     requires = ("descriptor",)
 
-    class Config(PluginConfig):
+    class Config(AcceptanceConfig):
+        false_accept_rate: float = Field(
+            0.0, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through; "
+            "0: above every wrong answer on the reference or a stream's first frames (at 0.01 two Nordland chunks, "
+            "563-1208 and 1690-2335, let wrong answers through)"
+        )
         vocabulary_update: UpdateRule = Field(
             "greedy", description="greedy: Wang et al. 2017's rule (T_ND1/T_ND2/T_NNDR, largest ND first); nndr: RTAB-Map's"
         )
@@ -132,7 +139,11 @@ class BowBayes(LoopDetector):
             "search", description="search: a frame merged by T_sim still runs the Bayes filter (RTAB-Map); repeat: "
             "it repeats the previous answer unsearched (eval.unsearched_frames can leave it out of the scores)"
         )
-        loop_threshold: float = Field(0.11, gt=0, le=1, description="T_loop: accept a loop when p(no loop) is below")
+        loop_threshold: float = Field(
+            0.11, gt=0, le=1, description="T_loop: the Bayes filter's own loop decision, p(no loop) below it (Wang et "
+            "al. 2017); what is accepted is decided by `accept` on the confidence 1 - p(no loop) (accept: 0.89 is T_loop "
+            "0.11)"
+        )
         transition_sigma: float = Field(1.6, gt=0, description="Gaussian of the loop-to-loop transition, in places")
         ignore_zero_similarities: bool = Field(
             False, description="mean/std of the likelihood over non-zero similarities only (RTAB-Map's choice)"
@@ -197,6 +208,7 @@ class BowBayes(LoopDetector):
         self._last_place: int | None = None
         self._last_answer: dict[str, LoopResult] = {}
         self._queries_started = False
+        self._acceptance = Acceptance(c, self.name)
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
         # predicting the coming frames' time (see _transfer)
@@ -290,6 +302,8 @@ class BowBayes(LoopDetector):
             # the reference traversal is over: every reference place becomes searchable
             self._queries_started = True
             self._into_working(self._memory.flush())
+            if self._acceptance.auto:
+                self._calibrate_on_reference()
         descriptors = features.descriptors
         n = len(descriptors)
         if n < self.config.min_features:
@@ -354,7 +368,7 @@ class BowBayes(LoopDetector):
                 result = self._repeat_answer(frame.index, frame.traversal, place)
             else:
                 step = self._search(bag)
-                result = self._answer(frame.index, step)
+                result = self._answer(frame.index, step, frame.traversal == "stream")
                 if step.best >= 0:
                     if result.accepted and frame.traversal == "stream" and place >= 0:
                         self._memory.close_loop(place, step.best)
@@ -368,7 +382,34 @@ class BowBayes(LoopDetector):
         cost = _Cost(started, other_seconds, modelled, searched_words, n_searched_places, n)
         transferred = self._transfer(cost, active_at_start, immune)
         stats = self._statistics(frame.index, n, quantised, other, place, merged, transferred, len(retrieved), step, cost)
-        return [*outputs, stats]
+        return [*self._acceptance.messages(), *outputs, stats]
+
+    def finish(self) -> Sequence[Message]:
+        self._acceptance.finish()
+        return self._acceptance.messages()
+
+    def _calibrate_on_reference(self) -> None:
+        """accept: auto, paired traversals: the Bayes filter (a fresh one, same parameters) runs
+        over the reference's last places (its last third, at most 600 frames) against the
+        reference places made ``accept_exclusion_frames`` (at most a tenth of it) or more before them: every answer is wrong."""
+        reference = sorted(self._places)
+        if not reference:
+            self._acceptance.calibrate([], "reference")
+            return
+        first_frame = self._places[reference[0]].frames[0]
+        n = self._places[reference[-1]].frames[-1] - first_frame + 1
+        start, horizon = (first_frame + p for p in self_split(n, self.config.accept_exclusion_frames, 600))
+        working = self._memory.working()
+        hypotheses = np.asarray([p for p in working.tolist() if self._places[p].frames[-1] < horizon], dtype=np.int64)
+        bayes = BayesFilter(self._filter.parameters)
+        wrong = []
+        for place in reference:
+            if self._places[place].frames[0] < start or not len(hypotheses):
+                continue
+            step = bayes.update(hypotheses, self._index.similarities(self._places[place].bag, hypotheses))
+            if step.best >= 0:
+                wrong.append(float(np.clip(1.0 - step.no_loop, 0.0, 1.0)))
+        self._acceptance.calibrate(wrong, "reference")
 
     # --- steps --------------------------------------------------------------------
 
@@ -379,16 +420,20 @@ class BowBayes(LoopDetector):
             self._counts["searches"] += 1
         return self._filter.update(hypotheses, similarities)
 
-    def _answer(self, frame: int, step: BayesStep) -> LoopResult:
+    def _answer(self, frame: int, step: BayesStep, stream: bool) -> LoopResult:
         if step.best < 0:
             return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="no place in working memory")
         ranked = step.hypotheses[np.argsort(-step.posterior, kind="stable")[: self.config.candidates]]
         frames = np.array([self._places[int(p)].frame for p in ranked], dtype=np.int64)
+        confidence = float(np.clip(1.0 - step.no_loop, 0.0, 1.0))
+        # accepted at the operating point (accept: auto calibrates it, a stream on its first frames)
+        accepted = (self._acceptance.stream_answer(self._counts["queries"], confidence) if stream
+                    else self._acceptance.accepts(confidence))
         return LoopResult(
             frame=frame,
             match=int(frames[0]),
-            confidence=float(np.clip(1.0 - step.no_loop, 0.0, 1.0)),
-            accepted=step.accepted,
+            confidence=confidence,
+            accepted=accepted,
             candidates=frames,
             match_frames=np.array(self._places[step.best].frames, dtype=np.int64),
         )
@@ -529,8 +574,9 @@ class BowBayes(LoopDetector):
             time_budget_seconds=self.config.time_budget_s,
         )
 
-    def statistics(self) -> dict[str, int]:
+    def statistics(self) -> dict[str, float | int]:
         return {
+            **self._acceptance.statistics(),
             "n_searches": self._counts["searches"],
             "n_places_reference": len(self._places),
             "n_places_query": self._counts["queries"],

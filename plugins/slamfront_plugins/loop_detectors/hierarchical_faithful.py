@@ -47,11 +47,7 @@ from slamfront_plugins.loop_detectors.hierarchical_levels import (
     match_frames,
     sequence_costs,
 )
-from slamfront_plugins.loop_detectors.place_sequences import (
-    DISTANCE_ACCEPT,
-    PlaceSequenceConfig,
-    PlaceSequenceDetector,
-)
+from slamfront_plugins.loop_detectors.place_sequences import PlaceSequenceConfig, PlaceSequenceDetector
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,10 +115,6 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         alpha: int = Field(
             5, ge=1, description="temporal consistency: |I(f_rho^{i-1}) - I(f_1^i)| < alpha places (Table 4.1)"
         )
-        accept_confidence: float = Field(
-            DISTANCE_ACCEPT, ge=0, le=1,
-            description="operating point: matches at this confidence 1 - v/2 (eq. 3.14) or more are accepted",
-        )
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
@@ -131,7 +123,6 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._iterations: dict[int, _Iteration] = {}
         self._last_matched: int | None = None  # map-frame position, for the synthetic sequence
         self._distances = 0
-        self.accept = c.accept_confidence
 
     # --- levels 1 and 2 -------------------------------------------------------------------
 
@@ -159,15 +150,14 @@ class HierarchicalFaithful(PlaceSequenceDetector):
     def _step(self, number: int, best: tuple[int, int] | None) -> list[Message]:
         """Level 2's temporal consistency (Alg. 3) with this iteration's best candidate (None:
         it has none, so what waited can no longer be validated by it)."""
-        n_map_places = len(self.place_map.place_offsets()) - 1
         out: list[Message] = []
-        for dispatch in self._consistency.step(number, best, n_map_places):
+        for dispatch in self._consistency.step(number, best, self._n_map_places()):
             out += self._level3(dispatch)
         return out
 
     def _end(self) -> list[Message]:
         out: list[Message] = []
-        for dispatch in self._consistency.finish(len(self.place_map.place_offsets()) - 1):
+        for dispatch in self._consistency.finish(self._n_map_places()):
             out += self._level3(dispatch)
         return out
 

@@ -55,11 +55,7 @@ from slamfront_plugins.loop_detectors.hierarchical_frames import (
     speeds,
     uniqueness,
 )
-from slamfront_plugins.loop_detectors.place_sequences import (
-    DISTANCE_ACCEPT,
-    PlaceSequenceConfig,
-    PlaceSequenceDetector,
-)
+from slamfront_plugins.loop_detectors.place_sequences import PlaceSequenceConfig, PlaceSequenceDetector
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,12 +97,6 @@ class SequenceDecision(Message):
 HELD_OUT = "chosen on held-out Nordland 2900-3575 and synthetic world seeds 100-102"
 """Where the frame-level defaults were chosen (none of it is in a row of the generalisation benchmark
 but the whole route and experiments 2 and 3, which contain frames 2900-3575)."""
-
-UNIQUENESS_ACCEPT = 0.04
-"""Default operating point of the uniqueness confidence ``1 - best/second`` (with the line
-check): on the held-out data (Nordland frames 2900-3575, also with a 150-frame block moved
-or replaced at frames 200 or 350 of it, and synthetic world seeds 100-102) every answer
-above 0.032 was correct; rounded up for a margin."""
 
 
 @dataclass
@@ -158,11 +148,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
         alpha: int = Field(
             5, ge=1, description="temporal consistency: max distance in map frames between an answer and the previous "
             "one continued (Table 4.1's value, counted in frames here)"
-        )
-        accept_confidence: float | None = Field(
-            None, ge=0, le=1, description="operating point: matches at this confidence or more are accepted; "
-            "unset: 0.75 for eq. 3.14's distance confidence (set by hand), 0.04 for uniqueness (on held-out data "
-            "every answer above 0.032 was correct)"
         )
         sequence_frames: int = Field(
             40, ge=2, description=f"query frames compared per candidate, at least Q's ({HELD_OUT})"
@@ -283,8 +268,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._waiting: _Answer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
         self._confidence_kind: str | None = None if c.confidence == "auto" else c.confidence
-        self.accept = c.accept_confidence if c.accept_confidence is not None else (
-            UNIQUENESS_ACCEPT if c.confidence == "uniqueness" else DISTANCE_ACCEPT)
 
     def _seen(self, frame: int) -> None:
         if self._order and self._stationary(frame):
@@ -430,8 +413,6 @@ class HierarchicalSequence(PlaceSequenceDetector):
         no more unique than look-alikes). Paired traversals: uniqueness."""
         if self._confidence_kind is None:
             self._confidence_kind = "distance" if stream else "uniqueness"
-            if self.config.accept_confidence is None:
-                self.accept = DISTANCE_ACCEPT if stream else UNIQUENESS_ACCEPT
         return self._confidence_kind
 
     def _informative_rows(self, positions: Iterable[int] | np.ndarray) -> np.ndarray:

@@ -7,10 +7,18 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pydantic import Field
 
-from slamfront import LoopDetector, Plugin, PluginConfig, StageInputs
+from slamfront import LoopDetector, Plugin, StageInputs
+from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import smallest, to_one
-from slamfront.messages import LoopResult
+from slamfront.core.distances import pairwise, smallest, to_one
+from slamfront.core.operating_point import (
+    exclusion_masked,
+    exclusion_window,
+    moving,
+    self_queries,
+    uniqueness_confidence,
+)
+from slamfront.messages import LoopResult, Message
 from slamfront.plugin import global_features, require_global_descriptor
 
 
@@ -21,14 +29,23 @@ class NearestNeighbour(LoopDetector):
     frames against all frames older than ``exclude_recent``). The confidence is a
     uniqueness score, ``1 - d_best / d_second``, where ``d_second`` is the best distance
     outside ``uniqueness_window`` frames of the best match, so a match that is much
-    better than anywhere else is trusted more. ``threshold`` is the operating point.
+    better than anywhere else is trusted more. ``accept`` is the operating point: by default
+    calibrated on the reference searched against itself outside ``accept_exclusion_frames`` (or on
+    a stream's first ``accept_calibration_frames``), see :mod:`slamfront.acceptance`.
     """
 
     name = "nearest_neighbour"
     requires = ("descriptor",)
 
-    class Config(PluginConfig):
-        threshold: float = Field(0.2, ge=0, le=1, description="accept a match at this confidence or more")
+    class Config(AcceptanceConfig):
+        legacy_accept_key = "threshold"
+
+        false_accept_rate: float = Field(
+            0.0, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through; "
+            "0: above every wrong answer on the reference (at 0.01 a chunk of Nordland, 1127-1772, let wrong answers "
+            "through: precision 0.915)"
+        )
+
         uniqueness_window: int = Field(10, ge=0, description="frames around the best match ignored for d_second")
         exclude_recent: int = Field(50, ge=0, description="stream mode: skip this many most recent frames")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
@@ -42,27 +59,61 @@ class NearestNeighbour(LoopDetector):
         self._n_searches = 0
         self._n_distances = 0
         self._metric = "l2"
+        self._acceptance = Acceptance(self.config, self.name)
+        self._n_calibration_distances = 0
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         require_global_descriptor(stages)
 
-    def process(self, inputs: StageInputs) -> Sequence[LoopResult]:
+    def process(self, inputs: StageInputs) -> Sequence[Message]:
         features = global_features(inputs)
         frame = inputs.frame
         self._metric = features.metric
         if self._vectors is None:
             self._vectors = GrowingRows(len(features.vector))
-        result: list[LoopResult] = []
+        result: list[Message] = []
+        if frame.traversal == "query" and not self._acceptance.calibrated:
+            self._calibrate_on_reference()
         if frame.traversal in ("query", "stream"):
-            result.append(self._search(frame.index, features.vector, frame.traversal == "stream"))
+            answer = self._search(frame.index, features.vector, frame.traversal == "stream")
+            if answer.match >= 0:
+                accepted = (self._acceptance.stream_answer(self._n_query, answer.confidence)
+                            if frame.traversal == "stream" else self._acceptance.accepts(answer.confidence))
+                answer = LoopResult(frame=answer.frame, match=answer.match, confidence=answer.confidence,
+                                    accepted=accepted, candidates=answer.candidates)
+            result.append(answer)
             self._n_query += 1
         if frame.traversal in ("reference", "stream"):
             self._vectors.append(features.vector)
             self._frames.append(frame.index)
             self._n_reference += 1
-        return result
+        return [*self._acceptance.messages(), *result]
+
+    def finish(self) -> Sequence[Message]:
+        self._acceptance.finish()
+        return self._acceptance.messages()
+
+    def _calibrate_on_reference(self) -> None:
+        """Every reference frame's best match among the reference frames more than
+        ``accept_exclusion_frames`` away is wrong: its confidences calibrate the threshold."""
+        n = 0 if self._vectors is None else len(self._frames)
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
+        queries = self_queries(n, window, 500)
+        if len(queries) == 0:
+            self._acceptance.calibrate([], "reference")
+            return
+        rows = self._vectors.view[:n]  # type: ignore[union-attr]
+        queries = queries[np.any(rows[queries] != 0, axis=1)]  # featureless frames get no answer
+        distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
+        self._n_calibration_distances = distances.size
+        masked = exclusion_masked(distances, np.arange(n), queries, window)
+        _, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
+        self._acceptance.calibrate(confidence[moving(distances, np.arange(n), queries)], "reference")
 
     def _search(self, frame: int, vector: np.ndarray, stream: bool) -> LoopResult:
+        if not np.any(vector):  # featureless (a black or blank frame): equally near every other one
+            return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False,
+                              reason="featureless query frame (all-zero descriptor)")
         usable = len(self._frames) - (self.config.exclude_recent if stream else 0)
         if self._vectors is None or usable < 1:
             return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="map too small")
@@ -79,14 +130,16 @@ class NearestNeighbour(LoopDetector):
             frame=frame,
             match=int(frames[best]),
             confidence=confidence,
-            accepted=confidence >= self.config.threshold,
+            accepted=False,  # decided by the operating point
             candidates=frames[order[: self.config.candidates]],
         )
 
-    def statistics(self) -> dict[str, int]:
+    def statistics(self) -> dict[str, float | int]:
         return {
             "n_searches": self._n_searches,
             "n_places_reference": self._n_reference,
             "n_places_query": self._n_query,
-            "n_distances": self._n_distances,
+            "n_distances": self._n_distances + self._n_calibration_distances,
+            "n_distances_calibration": self._n_calibration_distances,
+            **self._acceptance.statistics(),
         }

@@ -20,19 +20,21 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from pydantic import Field
 
-from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront import LoopDetector, Plugin, PluginError, StageInputs
+from slamfront.acceptance import Acceptance, AcceptanceConfig
+from slamfront.core.operating_point import exclusion_window
 from slamfront.messages import LoopResult, Message, PlaceAssignment
 from slamfront.plugin import SearchablePlaceMap
 
-DISTANCE_ACCEPT = 0.75
-"""Default operating point of eq. 3.14's confidence ``1 - v/2`` (the faithful detector; the
-frame-level one in a stream). Rodrigues 2019 gives none: set by hand when the detector was
-first written (no measurement behind it), then checked on the held-out synthetic demo
-worlds 100-102, where it accepts closures at precision 0.97-1.0."""
+CALIBRATION_QUERY_FRAMES = 600
+"""accept: auto with a reference: at most this many reference frames (its second half, at
+most) are answered against the reference before them, outside ``accept_exclusion_frames``."""
 
 
-class PlaceSequenceConfig(PluginConfig):
+class PlaceSequenceConfig(AcceptanceConfig):
     """The parameters both hierarchical detectors share (defaults: Rodrigues 2019 Table 4.1)."""
+
+    legacy_accept_key = "accept_confidence"
 
     rho: int = Field(5, ge=1, description="places per query sequence |Q| = |F| (Table 4.1)")
     psi: int = Field(10, ge=1, description="nearest neighbours searched at level 1 (Table 4.1)")
@@ -50,8 +52,10 @@ class PlaceSequenceDetector(LoopDetector):
     """Base of the hierarchical detectors: query places gathered into sequences of rho, and level 1.
 
     A subclass implements :meth:`_iteration` (levels 2 and 3 for one Q) and :meth:`_end`
-    (answers still pending when the traversal ends), and sets :attr:`accept`, the
-    operating point of its confidence.
+    (answers still pending when the traversal ends). Whether an answer is accepted is
+    decided here, in :meth:`_answer`, at the operating point (``accept``; auto: calibrated
+    on the reference answered against its own earlier part with the detector itself, or on
+    a stream's first frames, :mod:`slamfront.acceptance`).
     """
 
     requires = ("descriptor", "place_map")
@@ -60,7 +64,7 @@ class PlaceSequenceDetector(LoopDetector):
 
     Config = PlaceSequenceConfig
 
-    def __init__(self, config: PluginConfig | None = None) -> None:
+    def __init__(self, config: PlaceSequenceConfig | None = None) -> None:
         super().__init__(config)
         self._map: SearchablePlaceMap | None = None
         self._awaiting: deque[tuple[int, str]] = deque()  # (frame, traversal) of query frames not placed yet
@@ -71,8 +75,12 @@ class PlaceSequenceDetector(LoopDetector):
         self._n_iterations = 0
         self._counts: dict[str, int] = {}
         self._query_frames = 0
-        self.accept = 0.0
-        """Operating point: answers at this confidence or more are ``accepted``."""
+        self._acceptance = Acceptance(self.config, self.name)
+        self._query_position: dict[int, int] = {}  # query frame -> its position among the query frames
+        self._stream = False
+        self._horizon: int | None = None
+        """Calibration only: map places at positions from this one on are out of reach."""
+        self._calibration_distances = (0, 0)  # (level-1 search, sequences) computed by the calibration
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         place_map = stages.get("place_map")
@@ -90,17 +98,26 @@ class PlaceSequenceDetector(LoopDetector):
 
     def process(self, inputs: StageInputs) -> Sequence[Message]:
         self._map = inputs.stages["place_map"]  # type: ignore[assignment]
-        if inputs.frame.traversal != "reference":
-            self._awaiting.append((inputs.frame.index, inputs.frame.traversal))
         out: list[Message] = []
+        if inputs.frame.traversal != "reference":
+            if not self._query_frames and not self._awaiting:  # the first query frame
+                self._stream = inputs.frame.traversal == "stream"
+                if not self._stream and self._acceptance.auto:
+                    self._calibrate_on_reference()
+            self._awaiting.append((inputs.frame.index, inputs.frame.traversal))
         # the place map may place several frames at once (those it held while calibrating)
         for assignment in inputs.outputs.get("place_map", ()):
             if isinstance(assignment, PlaceAssignment) and self._awaiting and assignment.frame == self._awaiting[0][0]:
                 _, traversal = self._awaiting.popleft()
                 out += self._placed(assignment.frame, traversal, assignment.place, assignment.new_place)
-        return out
+        return [*self._acceptance.messages(), *out]
 
     def finish(self) -> Sequence[Message]:
+        out = self._finish()
+        self._acceptance.finish()
+        return [*self._acceptance.messages(), *out]
+
+    def _finish(self) -> list[Message]:
         out: list[Message] = []
         if self._map is None:
             return out
@@ -118,6 +135,7 @@ class PlaceSequenceDetector(LoopDetector):
         return out
 
     def _placed(self, frame: int, traversal: str, place: int, new_place: bool) -> list[Message]:
+        self._query_position[frame] = self._query_frames
         self._query_frames += 1
         self._seen(frame)
         out: list[Message] = []
@@ -156,13 +174,54 @@ class PlaceSequenceDetector(LoopDetector):
         """The traversal ended: answer what still waits."""
         return []
 
+    # --- the operating point ----------------------------------------------------------------
+
+    def _calibrate_on_reference(self) -> None:
+        """accept: auto, paired traversals: this detector (a copy, same parameters) answers the
+        reference's last frames (its last two thirds, at most ``CALIBRATION_QUERY_FRAMES``) as
+        queries, as a stream, against the reference places ending before the frames it compares
+        (``sequence_frames``) and the exclusion window (``accept_exclusion_frames``, at most a
+        tenth of the reference): a traversal does not revisit itself, so every answer more than
+        two windows away is wrong, and their confidences set the threshold."""
+        pm = self.place_map
+        offsets = pm.place_offsets()
+        n = int(offsets[-1])
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
+        start = n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)
+        reach = window + int(getattr(self.config, "sequence_frames", 0) or 0)
+        wrong: list[float] = []
+        searched = pm.search_distances
+        copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
+        copy._map = pm
+        out: list[Message] = []
+        previous = None
+        frames = pm.map_frames_at(np.arange(n)).tolist()
+        position = {f: k for k, f in enumerate(frames)}
+        for k in range(start, n):
+            # the map in reach ends the compared window and the exclusion window before this frame
+            copy._horizon = max(0, int(np.searchsorted(offsets, k - reach, side="right")) - 1)
+            place = pm.place_of(frames[k])
+            out += copy._placed(frames[k], "query", place, place != previous)
+            previous = place
+        out += copy._finish()
+        # an answer within two windows of its frame may be the query's own stretch seen just
+        # before: only those farther away are known to be wrong
+        wrong = [m.confidence for m in out if isinstance(m, LoopResult) and m.match >= 0
+                 and position[m.frame] - position.get(m.match, -n) > 2 * window]
+        self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
+        self._acceptance.calibrate(wrong, "reference")
+
     # --- level 1 --------------------------------------------------------------------------
+
+    def _n_map_places(self) -> int:
+        """Map places in reach (all of them, but while calibrating)."""
+        n_map_places = len(self.place_map.place_offsets()) - 1
+        return n_map_places if self._horizon is None else min(n_map_places, self._horizon)
 
     def _usable(self, stream: bool) -> int:
         """How many map places level 1 may search (positions 0..usable-1): in a stream, not
         the ``exclude_recent_places`` most recent (the robot just saw them)."""
-        n_map_places = len(self.place_map.place_offsets()) - 1
-        return n_map_places - (self.config.exclude_recent_places if stream else 0)
+        return self._n_map_places() - (self.config.exclude_recent_places if stream else 0)
 
     def _search(self, place: int, lo: int, usable: int) -> np.ndarray:
         """Level 1 (Alg. 2): the psi map places nearest to the place's representative among
@@ -175,8 +234,11 @@ class PlaceSequenceDetector(LoopDetector):
     # --- answers and bookkeeping -------------------------------------------------------------
 
     def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray) -> LoopResult:
-        return LoopResult(frame=frame, match=match, confidence=confidence, accepted=confidence >= self.accept,
-                          candidates=candidates)
+        """The one place an answer is accepted: at the operating point (in a stream, answers to
+        its first ``accept_calibration_frames`` frames calibrate it and are not accepted)."""
+        accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
+                    else self._acceptance.accepts(confidence))
+        return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)
 
     def _featureless(self, frame: int) -> LoopResult:
         self._count("featureless")
@@ -198,16 +260,19 @@ class PlaceSequenceDetector(LoopDetector):
         return 0
 
     def statistics(self) -> dict[str, float | int]:
-        search = self._map.search_distances if self._map is not None else 0
+        # the calibration's distances count in n_distances (the map counts its level-1 searches too)
+        calibration = sum(self._calibration_distances)
+        search = (self._map.search_distances if self._map is not None else 0) - self._calibration_distances[0]
         sequences = self._sequence_distances()
         stats: dict[str, float | int] = {
+            "n_distances_calibration": calibration,
             "n_searches": self._counts.get("searches", 0),
             "n_query_sequences": self._n_iterations,
             "n_query_frames": self._query_frames,
-            "n_distances": search + sequences,
+            "n_distances": search + sequences + calibration,
             "n_distances_search": search,
             "n_distances_sequences": sequences,
         }
         for key in (*self.branch_keys, "map_too_small", "no_candidate", "featureless", "no_answer_frames"):
             stats[f"n_{key}"] = self._counts.get(key, 0)
-        return stats
+        return {**stats, **self._acceptance.statistics()}

@@ -15,9 +15,11 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from slamfront import LoopDetector, Plugin, PluginConfig, PluginError, StageInputs
+from slamfront import LoopDetector, Plugin, PluginError, StageInputs
+from slamfront.acceptance import Acceptance, AcceptanceConfig
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import smallest
+from slamfront.core.operating_point import exclusion_window
 from slamfront.core.seqslam import (
     best_match,
     difference_columns,
@@ -27,11 +29,18 @@ from slamfront.core.seqslam import (
     sequence_scores_block,
     trajectory_offsets,
 )
-from slamfront.messages import Features, LoopResult
+from slamfront.messages import Features, LoopResult, Message
+
+CALIBRATION_BLOCKS = 8
+"""accept: auto: the reference is searched against itself in this many blocks of queries ..."""
+CALIBRATION_BLOCK_QUERIES = 40
+"""... of this many answered queries each, spread evenly over it."""
 
 
-class SeqSlamConfig(PluginConfig):
-    """Parameters shared by both variants; defaults are OpenSeqSLAM 2013's."""
+class SeqSlamConfig(AcceptanceConfig):
+    """Parameters shared by both variants; defaults are OpenSeqSLAM 2013's (but ``accept``)."""
+
+    legacy_accept_key = "threshold"
 
     ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, Rodrigues 2019: 40); even")
     search: Literal["lines", "paths"] = Field(
@@ -51,7 +60,6 @@ class SeqSlamConfig(PluginConfig):
     reverse: bool = Field(True, description="search paths: backward paths too (the reference driven the other way)")
     contrast_window: int = Field(10, ge=2, description="R: rows of the local contrast enhancement window")
     rwindow: int = Field(10, ge=0, description="rows around the best match excluded for the second best")
-    threshold: float = Field(0.1, ge=0, le=1, description="accept when confidence = 1 - ratio reaches this")
     mode: Literal["batch", "online"] = Field(
         "batch", description="batch: all queries, then match; online: answer each query ds/2 frames later"
     )
@@ -101,6 +109,8 @@ class _SequenceDetector(LoopDetector):
         self._window: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque(maxlen=c.ds + 1)
         self._pending: deque[int] = deque()
         self._n_searches = 0
+        self._acceptance = Acceptance(self.config, self.name)
+        self._calibration_distances = 0
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         if not getattr(stages["descriptor"], "produces_global", False):
@@ -112,6 +122,46 @@ class _SequenceDetector(LoopDetector):
         """Enhanced difference columns (R, q) of some queries, and the rows worth scoring
         for each (None: all rows)."""
         raise NotImplementedError
+
+    def _self_columns(self, positions: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        """As :meth:`_columns` for reference frames (by position) searched against the
+        reference, with the rows within ``accept_exclusion_frames`` of each out of reach."""
+        raise NotImplementedError
+
+    def _band(self, positions: np.ndarray) -> np.ndarray:
+        """(R, q) bool: reference rows within ``accept_exclusion_frames`` of each reference column."""
+        assert self._references is not None
+        rows = np.arange(len(self._references))
+        window = exclusion_window(len(rows), self.config.accept_exclusion_frames)
+        return np.abs(rows[:, None] - positions[None, :]) <= window
+
+    # -- the operating point -------------------------------------------------------------------
+
+    def _calibrate_on_reference(self) -> None:
+        """accept: auto: answer reference frames from the reference outside ``accept_exclusion_frames``
+        (every such answer is wrong), through the same difference matrix, enhancement and
+        sequence search as the queries; their confidences set the threshold."""
+        c = self.config
+        half = c.ds // 2
+        n = 0 if self._references is None else len(self._references)
+        wrong: list[float] = []
+        lo, hi = half, n - half  # reference positions with a full window
+        if self._too_few_references() is None and hi - lo > 0 and n > 2 * exclusion_window(n, c.accept_exclusion_frames) + c.ds:
+            size = min(CALIBRATION_BLOCK_QUERIES, hi - lo)
+            starts = np.unique(np.linspace(lo, hi - size, CALIBRATION_BLOCKS).round().astype(np.int64))
+            blocks = [self._self_columns(np.arange(start - half, start + size + half)) for start in starts]
+            self._calibration_distances = n * sum(columns.shape[1] for columns, _ in blocks)
+            offset = enhanced_lower_bound(c.contrast_window)
+            if c.score_offset == "global_min":
+                offset = min(float(columns.min()) for columns, _ in blocks)
+            for columns, rows in blocks:
+                shifted = columns.astype(np.float64) - offset
+                windows = [self._start_rows(rows[k : k + c.ds + 1], len(shifted)) for k in range(size)]
+                for scores in self._scores(shifted, windows):  # the queries' own search (lines or paths)
+                    found = best_match(scores, 2 * self._answered_at, c.rwindow)
+                    if found is not None:
+                        wrong.append(float(np.clip(1.0 - found.ratio, 0.0, 1.0)))
+        self._acceptance.calibrate(wrong, "reference")
 
     # -- streaming ---------------------------------------------------------------------------
 
@@ -143,11 +193,13 @@ class _SequenceDetector(LoopDetector):
                 f"frame {frame.index}: query descriptor length {len(features.vector)} differs from the "
                 f"references' {self._references.view.shape[1]} (images of different sizes?)"
             )
+        if not self._query_frames and self._acceptance.auto:
+            self._calibrate_on_reference()
         self._query_frames.append(frame.index)
         if self.config.mode == "batch":
             self._query_vectors.append(features.vector)
             return []
-        return self._online(frame.index, features.vector)
+        return self._with_messages(self._online(frame.index, features.vector))
 
     def _as_reference_type(self, vectors: np.ndarray) -> np.ndarray:
         assert self._references is not None
@@ -181,11 +233,17 @@ class _SequenceDetector(LoopDetector):
         starts = self._start_rows([r for _, _, r in self._window], len(shifted))
         return [self._answer(middle, self._scores(shifted, [starts])[0])]
 
-    def finish(self) -> Sequence[LoopResult]:
+    def _with_messages(self, out: Sequence[LoopResult]) -> list[Message]:
+        return [*self._acceptance.messages(), *out]
+
+    def finish(self) -> Sequence[Message]:
+        if self._acceptance.auto and not self._acceptance.calibrated:
+            self._calibrate_on_reference()
         if self.config.mode == "online":
             half = self.config.ds // 2
-            return [self._no_answer(f, f"among the last ds/2 = {half} queries") for f in self._pending]
-        return self._batch()
+            return self._with_messages([self._no_answer(f, f"among the last ds/2 = {half} queries")
+                                         for f in self._pending])
+        return self._with_messages(self._batch())
 
     def _batch(self) -> list[LoopResult]:
         c = self.config
@@ -245,7 +303,7 @@ class _SequenceDetector(LoopDetector):
             frame=frame,
             match=int(reference_frames[found.reference]),
             confidence=confidence,
-            accepted=confidence >= self.config.threshold,
+            accepted=self._acceptance.accepts(confidence),
             candidates=reference_frames[ranked + self._answered_at],
         )
 
@@ -268,12 +326,14 @@ class _SequenceDetector(LoopDetector):
         """Descriptor distances the detector needs: every entry of the difference matrix."""
         return len(self._reference_frames) * len(self._query_frames)
 
-    def statistics(self) -> dict[str, int]:
+    def statistics(self) -> dict[str, float | int]:
         return {
             "n_searches": self._n_searches,
             "n_places_reference": len(self._reference_frames),
             "n_places_query": len(self._query_frames),
-            "n_distances": self._distance_count(),
+            "n_distances": self._distance_count() + self._calibration_distances,
+            "n_distances_calibration": self._calibration_distances,
+            **self._acceptance.statistics(),
         }
 
 
@@ -296,6 +356,13 @@ class SeqSlam(_SequenceDetector):
         assert self._references is not None
         differences = difference_columns(self._references.view, queries)
         return enhance_contrast(differences, self.config.contrast_window), [None] * len(queries)
+
+    def _self_columns(self, positions: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        assert self._references is not None
+        references = self._references.view
+        enhanced = enhance_contrast(difference_columns(references, references[positions]), self.config.contrast_window)
+        # the band (the frame itself and its neighbours) is enhanced as in any column, then out of reach
+        return np.where(self._band(positions), enhanced.max(), enhanced), [None] * len(positions)
 
 
 class SeqSlamFast(_SequenceDetector):
@@ -329,6 +396,16 @@ class SeqSlamFast(_SequenceDetector):
         super().__init__(config)
         self._index = None
         self._indexed = 0
+
+    def _self_columns(self, positions: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        # exact neighbours outside the band, kept as _columns keeps a query's
+        assert self._references is not None
+        references = self._references.view
+        band = self._band(positions)
+        distances = np.where(band, np.inf, difference_columns(references, references[positions])).T  # (q, R)
+        k = min(self.config.k, int((~band).sum(axis=0).min()))
+        nearest = np.argpartition(distances, k - 1, axis=1)[:, :k]
+        return self._kept(nearest, np.take_along_axis(distances, nearest, axis=1), band)
 
     def _neighbours(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(q, k) indices of each query's nearest references and their mean absolute differences."""
@@ -366,10 +443,20 @@ class SeqSlamFast(_SequenceDetector):
         return min(self.config.k, len(self._reference_frames)) * len(self._query_frames)
 
     def _columns(self, queries: np.ndarray) -> tuple[np.ndarray, list[np.ndarray | None]]:
-        assert self._references is not None
         nearest, distances = self._neighbours(queries)
-        n_ref = len(self._references)
+        return self._kept(nearest, distances)
+
+    def _kept(self, nearest: np.ndarray, distances: np.ndarray, band: np.ndarray | None = None,
+              ) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        """Enhanced columns keeping each query's ``nearest`` references (their ``distances``;
+        the rest at the column's largest kept one), and the rows worth scoring; ``band``
+        entries (calibration) out of reach after the enhancement."""
+        assert self._references is not None
+        n_ref, n_queries = len(self._references), len(nearest)
         differences = np.repeat(distances.max(axis=1)[None, :], n_ref, axis=0).astype(np.float32)
-        differences[nearest.T, np.arange(len(queries))[None, :]] = distances.T
+        differences[nearest.T, np.arange(n_queries)[None, :]] = distances.T
         rows: list[np.ndarray | None] = [np.unique(row) for row in nearest]
-        return enhance_contrast(differences, self.config.contrast_window), rows
+        enhanced = enhance_contrast(differences, self.config.contrast_window)
+        if band is not None:
+            enhanced = np.where(band, enhanced.max(), enhanced)
+        return enhanced, rows

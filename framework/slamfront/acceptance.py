@@ -1,0 +1,146 @@
+"""What every loop detector shares about its operating point: ``accept: auto`` (the default)
+or a fixed confidence, the ``AcceptThreshold`` message that logs it, and the bookkeeping
+of a calibration (the rule itself: :mod:`slamfront.core.operating_point`).
+
+``accept: auto`` never reads query ground truth. Paired traversals: the detector answers
+reference frames against the rest of the reference outside ``accept_exclusion_frames`` (every such
+answer is wrong), before its first query. A stream: the answers to its first
+``accept_calibration_frames`` frames (before any revisit; none of them is accepted) are the wrong
+ones. The threshold: those wrong confidences' ``1 - false_accept_rate`` quantile.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from slamfront.core.operating_point import threshold_at_false_accept_rate
+from slamfront.messages import Message
+from slamfront.plugin import PluginConfig
+
+
+class AcceptanceConfig(PluginConfig):
+    """The operating point of a loop detector's confidence (every detector's config has these)."""
+
+    legacy_accept_key: ClassVar[str | None] = None
+    """An older name of a fixed ``accept`` (still read, as ``accept: <value>``)."""
+
+    accept: Literal["auto"] | float = Field(
+        "auto", description="operating point: answers at this confidence or more are accepted; auto: calibrated "
+        "from wrong answers the detector has seen (the reference against itself, or a stream's first frames) at "
+        "false_accept_rate, never from query ground truth"
+    )
+    false_accept_rate: float = Field(
+        0.01, ge=0, lt=1, description="accept: auto: the share of wrong answers the threshold may let through "
+        "(chosen on Nordland chunks and synthetic worlds, docs/loop_closure.md)"
+    )
+    accept_calibration_frames: int = Field(
+        200, ge=1, description="accept: auto in a stream: answers to the first this many frames calibrate the "
+        "threshold (no revisit may happen in them; none of them is accepted)"
+    )
+    accept_exclusion_frames: int = Field(
+        50, ge=1, description="accept: auto with a reference: reference frames this close to a reference frame "
+        "searched against the others are not wrong matches"
+    )
+
+    @field_validator("accept")
+    @classmethod
+    def _in_unit_interval(cls, value: Any) -> Any:
+        if value != "auto" and not 0.0 <= float(value) <= 1.0:
+            raise ValueError("accept must be auto or a confidence in [0, 1]")
+        return value
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_key(cls, data: Any) -> Any:
+        key = cls.legacy_accept_key
+        if isinstance(data, dict) and key is not None and key in data:
+            if "accept" in data:
+                raise ValueError(f"give `accept` or its older name `{key}`, not both")
+            data = {("accept" if k == key else k): v for k, v in data.items()}
+        return data
+
+
+@dataclass(frozen=True, eq=False)
+class AcceptThreshold(Message):
+    """A loop detector's acceptance threshold: calibrated (``accept: auto``) or as given."""
+
+    schema_name: ClassVar[str] = "slamfront.AcceptThreshold"
+    detector: str
+    threshold: float
+    auto: bool
+    source: str
+    """``reference`` (against itself), ``stream`` (its first frames) or ``given``."""
+    n_wrong: int
+    """Wrong answers the threshold was calibrated on (0 when given)."""
+    false_accept_rate: float
+    largest_wrong: float
+    """The most confident of them (NaN when given)."""
+
+
+class Acceptance:
+    """One detector's operating point: fixed, or calibrated once from wrong answers.
+
+    Until calibrated, nothing is accepted. :meth:`messages` hands out the
+    ``AcceptThreshold`` once (the detector adds it to its output).
+    """
+
+    def __init__(self, config: AcceptanceConfig, detector: str) -> None:
+        self._config = config
+        self._detector = detector
+        self.auto = config.accept == "auto"
+        self.threshold: float | None = None if self.auto else float(config.accept)
+        self.n_wrong = 0
+        self._stream_wrong: list[float] = []
+        self._outbox: list[Message] = []
+        if not self.auto:
+            self._outbox.append(AcceptThreshold(detector, float(self.threshold), False, "given", 0,  # type: ignore[arg-type]
+                                                float("nan"), float("nan")))
+
+    @property
+    def calibrated(self) -> bool:
+        return self.threshold is not None
+
+    def accepts(self, confidence: float) -> bool:
+        return self.threshold is not None and confidence >= self.threshold
+
+    def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
+        """Set the threshold from the confidences of answers known to be wrong."""
+        values = np.asarray(wrong, dtype=np.float64)
+        values = values[np.isfinite(values)]
+        rate = self._config.false_accept_rate
+        self.threshold = threshold_at_false_accept_rate(values, rate)
+        self.n_wrong = len(values)
+        self._outbox.append(AcceptThreshold(
+            self._detector, self.threshold, True, source, len(values), rate,
+            float(values.max()) if len(values) else float("nan"),
+        ))
+        return self.threshold
+
+    def stream_answer(self, position: int, confidence: float) -> bool:
+        """A stream's answer to its ``position``-th frame (0-based): gathered as a wrong one while
+        in the first ``accept_calibration_frames``, the threshold set at the first answer after them.
+        Returns whether it is accepted."""
+        if self.calibrated:
+            return self.accepts(confidence)
+        if position < self._config.accept_calibration_frames:
+            self._stream_wrong.append(confidence)
+            return False
+        self.calibrate(self._stream_wrong, "stream")
+        return self.accepts(confidence)
+
+    def finish(self) -> None:
+        """The run ended: a stream shorter than its calibration still logs what it would use."""
+        if not self.calibrated:
+            self.calibrate(self._stream_wrong, "stream")
+
+    def messages(self) -> list[Message]:
+        out, self._outbox = self._outbox, []
+        return out
+
+    def statistics(self) -> dict[str, float | int]:
+        return {"accept_threshold": float("nan") if self.threshold is None else self.threshold,
+                "accept_auto": int(self.auto), "accept_n_wrong": self.n_wrong}

@@ -1,0 +1,109 @@
+"""The acceptance threshold of a loop detector, calibrated from wrong answers it has seen.
+
+A SLAM back end consumes the closures a detector *accepts*; one false closure can bend a
+map. The threshold is therefore set at a chosen false-accept rate of the detector's own
+confidence on answers known to be wrong without any query ground truth:
+
+- paired traversals: the reference traversal searched against itself outside a temporal
+  exclusion window (a traversal does not revisit itself, so every answer there is wrong);
+- a stream: the answers to its first frames, before any revisit is possible.
+
+The threshold is the ``1 - rate`` quantile of those wrong confidences (the largest of them
+when there are fewer than ``1 / rate``), times ``margin``: every answer of the detector
+at or above it is accepted. Pure array functions; the detectors' shared bookkeeping is
+:mod:`slamfront.acceptance`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamfront.core.errors import CoreError
+
+
+def threshold_at_false_accept_rate(wrong: np.ndarray, rate: float, margin: float = 1.0) -> float:
+    """The confidence at or above which at most ``rate`` of the ``wrong`` answers lie.
+
+    ``wrong``: confidences of answers known to be wrong (NaN ignored). Returns the
+    smallest threshold ``t`` with ``mean(wrong >= t) <= rate``, taken just above a wrong
+    confidence (``nextafter``), times ``margin`` and capped at 1 (1: accept nothing
+    short of certainty; with no wrong answer at all, the threshold is 1 too).
+    """
+    if not 0.0 <= rate < 1.0:
+        raise CoreError(f"false-accept rate must be in [0, 1), got {rate}")
+    values = np.sort(np.asarray(wrong, dtype=np.float64).ravel())
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return 1.0
+    allowed = int(np.floor(rate * len(values)))  # wrong answers that may be accepted
+    above = float(values[len(values) - 1 - allowed])  # the largest wrong confidence that must be rejected
+    return float(min(1.0, np.nextafter(above, np.inf) * margin))
+
+
+def exclusion_window(n: int, frames: int) -> int:
+    """The temporal exclusion window for a traversal of ``n`` frames: ``frames``, but at most a
+    tenth of the traversal (at least 1), so a short reference (a room's 111 frames) keeps
+    most of itself as wrong candidates."""
+    return max(1, min(frames, n // 10))
+
+
+def self_split(n: int, frames: int, most: int) -> tuple[int, int]:
+    """Paired traversals searched against themselves by a detector that keeps a map growing
+    in time: the last third of the ``n`` frames (at most ``most``) are the queries, from
+    position ``start``; the map is the frames before ``horizon`` = ``start`` minus the
+    exclusion window. Returns ``(start, horizon)``."""
+    start = n - min(n // 3, most)
+    return start, start - exclusion_window(n, frames)
+
+
+def exclusion_masked(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, window: int) -> np.ndarray:
+    """``distances`` (rows x columns of one traversal against itself) with every entry
+    whose row and column frame positions are at most ``window`` apart set to +inf: what
+    a search for a *wrong* match may not return."""
+    near = np.abs(np.asarray(rows)[:, None] - np.asarray(columns)[None, :]) <= window
+    return np.where(near, np.inf, distances)
+
+
+def uniqueness_confidence(distances: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per column of ``distances`` (candidates x queries, +inf: not a candidate): the best
+    candidate and the confidence ``1 - d_best / d_second``, ``d_second`` the best distance
+    more than ``window`` candidates away from the best (as the nearest-neighbour
+    detector's). Returns ``(best, confidence)``."""
+    d = np.asarray(distances, dtype=np.float64)
+    best = np.argmin(d, axis=0)
+    d_best = d[best, np.arange(d.shape[1])]
+    far = np.abs(np.arange(d.shape[0])[:, None] - best[None, :]) > window
+    second = np.where(far, d, np.inf).min(axis=0)
+    second = np.where(np.isfinite(second), second, d_best * 2 + 1e-9)
+    confidence = np.clip(1.0 - d_best / np.maximum(second, 1e-12), 0.0, 1.0)
+    return best, np.where(np.isfinite(d_best), confidence, np.nan)
+
+
+def self_queries(n: int, window: int, most: int) -> np.ndarray:
+    """Positions of a traversal of ``n`` frames to search against the rest of itself, at
+    most ``most`` of them, evenly spread (every frame when it has no more than ``most``);
+    empty when no frame has a frame more than ``window`` away."""
+    if n <= window + 1:
+        return np.empty(0, dtype=np.int64)
+    if n <= most:
+        return np.arange(n, dtype=np.int64)
+    return np.unique(np.linspace(0, n - 1, most).round().astype(np.int64))
+
+
+def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, still: float = 0.1) -> np.ndarray:
+    """(q,) bool: self-queries (``columns``, frame positions; ``distances`` rows x columns of
+    the traversal against itself) taken while the vehicle moved: the distance to the frame's
+    own next or previous frame is above ``still`` times the median such distance. A frame
+    at a stop longer than the exclusion window can pair with the same place, so its answer
+    is not known to be wrong and is left out."""
+    rows = np.asarray(rows)
+    position = {int(r): k for k, r in enumerate(rows.tolist())}
+    adjacent = np.full(len(columns), np.inf)
+    for k, c in enumerate(np.asarray(columns).tolist()):
+        for neighbour in (c - 1, c + 1):
+            if neighbour in position:
+                adjacent[k] = min(adjacent[k], float(distances[position[neighbour], k]))
+    finite = adjacent[np.isfinite(adjacent)]
+    if len(finite) == 0:
+        return np.ones(len(columns), dtype=bool)
+    return adjacent > still * float(np.median(finite))

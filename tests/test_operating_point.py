@@ -1,0 +1,165 @@
+"""accept: auto: every loop detector calibrates its acceptance threshold from wrong answers it
+has seen (the reference against itself, or a stream's first frames), logs it, and never
+reads the queries to do so."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from slamfront.acceptance import AcceptThreshold
+from slamfront.core.operating_point import threshold_at_false_accept_rate
+from slamfront.frame import Frame
+from slamfront.messages import Features, LoopResult, Message
+from slamfront.plugin import StageInputs
+from slamfront_plugins.loop_detectors.bow_bayes import BowBayes
+from slamfront_plugins.loop_detectors.hierarchical_faithful import HierarchicalFaithful
+from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalSequence
+from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
+from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
+from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
+
+# --- the rule -----------------------------------------------------------------------------
+
+
+def test_the_threshold_lets_through_at_most_the_rate_of_wrong_answers() -> None:
+    wrong = np.random.default_rng(0).random(1000)
+    for rate in (0.0, 0.01, 0.1):
+        t = threshold_at_false_accept_rate(wrong, rate)
+        assert np.mean(wrong >= t) <= rate
+        assert np.mean(wrong >= np.nextafter(t, -np.inf) - 1e-3) > rate or rate == 0.0
+    assert threshold_at_false_accept_rate(wrong, 0.0) > wrong.max()
+    assert threshold_at_false_accept_rate(np.array([]), 0.01) == 1.0  # nothing seen: accept nothing
+    assert threshold_at_false_accept_rate(np.array([0.2, np.nan]), 0.01) == pytest.approx(0.2)
+
+
+# --- every detector, paired traversals ------------------------------------------------------
+
+
+def _frame(index: int, traversal: str) -> Frame:
+    return Frame(index=index, timestamp=float(index), image=np.zeros((2, 2), np.uint8), traversal=traversal)  # type: ignore[arg-type]
+
+
+def _feed_global(detector: Any, vectors: np.ndarray, traversals: list[str], metric: str = "l1") -> list[Message]:
+    out: list[Message] = []
+    for index, (vector, traversal) in enumerate(zip(vectors, traversals)):
+        inputs = StageInputs(frame=_frame(index, traversal),
+                             outputs={"descriptor": [Features(frame=index, vector=vector, metric=metric)]})
+        out += detector.process(inputs)
+    return out + list(detector.finish())
+
+
+def _uint8_route(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    places = rng.random((n, 64)) * 255
+    queries = places + rng.normal(0, 40.0, places.shape)
+    return np.clip(places, 0, 255).astype(np.uint8), np.clip(queries, 0, 255).astype(np.uint8)
+
+
+def _run(name: str, reference: np.ndarray, query: np.ndarray) -> list[Message]:
+    """The detector ``name`` with its defaults (accept: auto) over reference then query."""
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    vectors = np.concatenate([reference, query])
+    if name in ("hierarchical_sequence", "hierarchical_faithful"):
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        cls = HierarchicalSequence if name == "hierarchical_sequence" else HierarchicalFaithful
+        return run_stages(vectors, traversals, place_map, cls(cls.Config(sequence_frames=20)
+                                                               if cls is HierarchicalSequence else None))
+    if name == "nearest_neighbour":
+        return _feed_global(NearestNeighbour(), vectors, traversals, "l2")
+    cls = SeqSlam if name == "seqslam" else SeqSlamFast
+    return _feed_global(cls(), vectors, traversals)
+
+
+def _route(name: str, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    if name.startswith("seqslam"):
+        return _uint8_route(300, seed)
+    reference = route_descriptors(150, 2, seed=seed)
+    return reference, noisy(reference, 0.1)
+
+
+PAIRED = ["nearest_neighbour", "seqslam", "seqslam_fast", "hierarchical_sequence", "hierarchical_faithful"]
+
+
+@pytest.mark.parametrize("name", PAIRED)
+def test_paired_detectors_calibrate_on_the_reference_and_log_it(name: str) -> None:
+    reference, query = _route(name)
+    out = _run(name, reference, query)
+    thresholds = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert len(thresholds) == 1
+    t = thresholds[0]
+    assert t.auto and t.source == "reference" and t.n_wrong > 10 and 0 < t.threshold <= 1
+    assert t.threshold > t.largest_wrong or t.false_accept_rate > 0
+    results = [m for m in out if isinstance(m, LoopResult) and m.frame >= len(reference)]
+    accepted = [r for r in results if r.accepted]
+    assert all(r.confidence >= t.threshold for r in accepted)
+    assert all(not r.accepted for r in results if r.confidence < t.threshold)
+    # a clean re-traversal: what is accepted is right, and something is
+    assert accepted and np.mean([abs(r.match - (r.frame - len(reference))) <= 3 for r in accepted]) >= 0.95
+
+
+@pytest.mark.parametrize("name", PAIRED)
+def test_the_threshold_never_reads_the_queries(name: str) -> None:
+    """The same reference with other queries (shuffled, or another route): the same threshold."""
+    reference, query = _route(name)
+    other = np.random.default_rng(5).permutation(len(query))
+
+    def threshold(q: np.ndarray) -> float:
+        return next(m.threshold for m in _run(name, reference, q) if isinstance(m, AcceptThreshold))
+
+    assert threshold(query) == threshold(query[other]) == threshold(_route(name, seed=9)[1])
+
+
+@pytest.mark.parametrize("name", PAIRED)
+def test_a_fixed_operating_point_stays_available(name: str) -> None:
+    key = "accept_confidence" if name.startswith("hierarchical") else "threshold"  # the older names still work
+    cls = {"nearest_neighbour": NearestNeighbour, "seqslam": SeqSlam, "seqslam_fast": SeqSlamFast,
+           "hierarchical_sequence": HierarchicalSequence, "hierarchical_faithful": HierarchicalFaithful}[name]
+    assert cls.Config(**{key: 0.3}).accept == 0.3 and cls.Config(accept=0.4).accept == 0.4
+    assert cls.Config().accept == "auto"
+    with pytest.raises(ValueError):
+        cls.Config(accept=1.5)
+
+
+def test_bow_bayes_calibrates_paired_traversals_on_the_reference() -> None:
+    rng = np.random.default_rng(0)
+    landmarks = rng.normal(size=(120, 40, 16)).astype(np.float32)
+
+    def observe(place: int) -> np.ndarray:
+        seen = landmarks[place][rng.choice(40, 30, replace=False)]
+        return (seen + rng.normal(scale=0.05, size=seen.shape)).astype(np.float32)
+
+    def run(order: np.ndarray) -> list[Message]:
+        detector = BowBayes(BowBayes.Config(nd_low=0.5, nd_high=2.0, stm_size=5, time_budget_s=0.0))
+        out: list[Message] = []
+        frames = [(p, "reference") for p in range(120)] + [(int(p), "query") for p in order]
+        for index, (place, traversal) in enumerate(frames):
+            features = Features(frame=index, descriptors=observe(place), metric="l2")
+            out += detector.process(StageInputs(frame=_frame(index, traversal), outputs={"descriptor": [features]}))
+        return out + list(detector.finish())
+
+    first = [m for m in run(np.arange(120)) if isinstance(m, AcceptThreshold)]
+    assert len(first) == 1 and first[0].auto and first[0].source == "reference" and first[0].n_wrong > 20
+    again = [m for m in run(np.random.default_rng(3).permutation(120)) if isinstance(m, AcceptThreshold)]
+    # the observation noise differs between the runs (one generator): thresholds agree closely
+    assert again[0].n_wrong == first[0].n_wrong
+
+
+# --- a stream --------------------------------------------------------------------------------
+
+
+def test_a_stream_calibrates_on_its_first_frames_and_accepts_none_of_them() -> None:
+    route = route_descriptors(100, 2, seed=3)
+    vectors = np.concatenate([route, noisy(route, 0.05)])
+    detector = NearestNeighbour(NearestNeighbour.Config(accept_calibration_frames=200))
+    out = _feed_global(detector, vectors, ["stream"] * len(vectors), "l2")
+    t = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert len(t) == 1 and t[0].source == "stream" and t[0].auto
+    results = [m for m in out if isinstance(m, LoopResult)]
+    assert not any(r.accepted for r in results if r.frame < 200)
+    accepted = [r for r in results if r.accepted]
+    assert accepted and all(abs(r.match - (r.frame - 200)) <= 2 for r in accepted)
+    assert detector.statistics()["accept_threshold"] == t[0].threshold
