@@ -124,5 +124,5 @@ def merge_sections(path: Path, body: str) -> str:
         if mark not in heading:
             heading += f"{mark})"
             rest = f"\n{machine_line or 'Machine: not recorded.'} (The machine of that run.)\n{rest}"
-        out += f"\n\n## {heading}\n{rest}"
+        out = out.rstrip("\n") + f"\n\n## {heading}\n{rest.strip(chr(10))}\n"
     return out
