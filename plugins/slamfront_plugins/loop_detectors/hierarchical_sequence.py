@@ -316,7 +316,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
                 steps = rowwise(vectors[:-1], vectors[1:], pm.metric)  # type: ignore[arg-type]
                 limit = self.config.stationary * float(np.median(steps))
             self._stationary_limit = limit
-        if self._stationary_limit <= 0 or not self._informative[-1] or not bool(pm.informative([frame])[0]):
+        if self._stationary_limit <= 0 or not self._informative.view[-1, 0] or not bool(pm.informative([frame])[0]):
             return False  # featureless frames all look alike, moving or not
         pair = pm.vectors([self._order[-1], frame])
         return float(rowwise(pair[:1], pair[1:], pm.metric)[0]) < self._stationary_limit  # type: ignore[arg-type]
