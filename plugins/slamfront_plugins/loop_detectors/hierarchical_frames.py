@@ -362,10 +362,10 @@ def compare_candidates(
         stage over ``screen_frames`` rows.
     :param reverse_anchors: each anchor's map-frame position for reverse lines (with a cone,
         or when every speed is negative; None: the same as forward).
-    :param distinct: with ``refine``, an anchor whose screened line ends within this many
-        map frames of a better one's is passed over while others remain (0: keep the
-        ``refine`` best whatever their ends): anchors of the same place all find the same
-        line, and the uniqueness confidence needs a candidate ending elsewhere to compare with.
+    :param distinct: with ``refine``, when the ``refine`` best screened lines all end within
+        this many map frames of the best one's, the best ending farther away is compared in
+        full too (0: never): anchors of one place all find the same line, and the uniqueness
+        confidence needs a candidate ending elsewhere to compare with.
     :returns: ``(trajectory, source)`` of the anchors with a trajectory in the map.
     """
     backwards = reverse_anchors if reverse_anchors is not None else [m for _, m, _ in anchors]
@@ -391,12 +391,10 @@ def compare_candidates(
             if found is not None:
                 screened.append((found.cost, k, int(found.at(int(rows[-1])))))
         screened.sort()
-        best: list[tuple[float, int, int]] = []
-        for entry in screened:  # the best, then the best ending apart from those kept
-            if len(best) < refine and (distinct <= 0 or all(abs(entry[2] - other[2]) > distinct for other in best)):
-                best.append(entry)
-        if len(best) < refine:  # too few apart: the next best, wherever they end
-            best += [entry for entry in screened if entry not in best][: refine - len(best)]
+        best = screened[:refine]
+        if distinct > 0 and all(abs(entry[2] - best[0][2]) <= distinct for entry in best):
+            # all at one place: the best ending elsewhere too, for the uniqueness to compare with
+            best += [entry for entry in screened[refine:] if abs(entry[2] - best[0][2]) > distinct][:1]
         kept = [k for _, k, _ in best] + [k for k, a in enumerate(anchors) if a[2] < 0]
     found = []
     for order, k in enumerate(kept):

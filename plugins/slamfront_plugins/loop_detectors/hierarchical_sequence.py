@@ -221,10 +221,10 @@ class HierarchicalSequence(PlaceSequenceDetector):
             "route needs at least 10x fewer distances than SeqSLAM)"
         )
         refine_apart: bool = Field(
-            True, description="refine > 0: a level-1 candidate whose screened line ends within uniqueness_window "
-            "map frames of a better one's is passed over for the next one ending elsewhere (the uniqueness "
-            "confidence needs a candidate apart from the best; designed on Nordland 2900-3499 and synthetic "
-            "world seeds 3-4)"
+            True, description="refine > 0: when the refine best screened candidates all end within "
+            "uniqueness_window map frames of the best, the best one ending farther away gets the full comparison "
+            "too (the uniqueness confidence needs a candidate apart from the best; designed on Nordland "
+            "2900-3499 and synthetic world seeds 3-4)"
         )
         screen_frames: int = Field(
             6, ge=1, description="query frames of the screening, refine > 0 (chosen on held-out Nordland 2900-3575 "
