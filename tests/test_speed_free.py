@@ -137,3 +137,48 @@ def test_the_synthetic_world_drives_its_query_backwards_or_resampled_by_odometry
     assert len(SyntheticWorld(stops).pass_positions(1)) > 300  # stops add frames
     smart = SyntheticWorld(stops.model_copy(update={"resample_m": 1.0}))
     assert np.array_equal(smart.pass_positions(1), np.arange(300.0))  # one frame per metre: the stops are gone
+
+
+# --- stops seen through noise, and candidates kept apart ---------------------------------------------
+
+
+def test_a_stop_seen_through_sensor_noise_shares_its_place_and_is_still_matched() -> None:
+    # every map frame is its own place (the map moves at every frame); the query stops now
+    # and then, each stopped frame a new noisy view of the same place
+    reference = route_descriptors(150, 1, seed=3)
+    truth = retimed_frames(len(reference), "stop_and_go", seed=2)  # stops of 10-40 frames
+    query = noisy(reference[truth], 0.05, seed=6)
+    repeats = int((np.diff(truth) == 0).sum())
+    assert repeats >= 15
+    found = {}
+    for still in (0.7, 0.0):
+        detector = HierarchicalSequence(HierarchicalSequence.Config(sequence_frames=20, still=still))
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        outputs = run_stages(np.concatenate([reference, query]), ["reference"] * len(reference) +
+                             ["query"] * len(query), place_map, detector)
+        results = {m.frame - len(reference): m for m in outputs if isinstance(m, LoopResult)}
+        right = sum(r.match >= 0 and abs(r.match - truth[k]) <= 2 and r.confidence >= 0.04
+                    for k, r in results.items())
+        found[still] = (detector._counts.get("stationary", 0), right)
+    stopped, right = found[0.7]
+    assert 0.8 * repeats <= stopped <= repeats  # the stops, and no moving frame
+    assert found[0.0][0] == 0  # a noisy stop is not below the fixed 0.02 of the map's median step
+    assert right >= 0.8 * len(query) and right > found[0.0][1]
+
+
+def test_candidates_kept_for_the_full_comparison_end_apart() -> None:
+    from slamfront_plugins.loop_detectors.hierarchical_frames import PairDistances, compare_candidates
+
+    map_vectors = route_descriptors(100, 1, seed=8)
+    query = noisy(map_vectors, 0.05, seed=9)
+    pairs = PairDistances(lambda t, m: np.abs(query[t] - map_vectors[m]).sum(axis=1), 200)
+    rows = np.arange(40, 60)
+    # three anchors on the true line (map frame 40 and its neighbours), one elsewhere
+    anchors = [(40, 40, 0), (40, 41, 1), (40, 39, 2), (40, 70, 3)]
+    kwargs = dict(velocities=np.asarray([1.0]), slack=2, refine=2, screen_frames=6, screen_speeds=np.asarray([1.0]))
+    together = compare_candidates(pairs, anchors, rows, 100, np.ones(100, dtype=bool), **kwargs)  # type: ignore[arg-type]
+    apart = compare_candidates(pairs, anchors, rows, 100, np.ones(100, dtype=bool), distinct=10,  # type: ignore[arg-type]
+                               **kwargs)
+    assert {source for _, source in together} <= {0, 1, 2}  # the best two: both the true place
+    assert 3 in {source for _, source in apart}  # the far candidate, for the uniqueness to compare with
+    assert int(apart[0][0].at(59)) == 59

@@ -347,6 +347,7 @@ def compare_candidates(
     screen_speeds: np.ndarray,
     cone: Cone | None = None,
     reverse_anchors: list[int] | None = None,
+    distinct: int = 0,
 ) -> list[tuple[Trajectory, int]]:
     """Level 2, frame by frame: each anchor's best trajectory over the query positions
     ``rows``, best first (ties: the anchors' order).
@@ -361,6 +362,10 @@ def compare_candidates(
         stage over ``screen_frames`` rows.
     :param reverse_anchors: each anchor's map-frame position for reverse lines (with a cone,
         or when every speed is negative; None: the same as forward).
+    :param distinct: with ``refine``, when the ``refine`` best screened lines all end within
+        this many map frames of the best one's, the best ending farther away is compared in
+        full too (0: never): anchors of one place all find the same line, and the uniqueness
+        confidence needs a candidate ending elsewhere to compare with.
     :returns: ``(trajectory, source)`` of the anchors with a trajectory in the map.
     """
     backwards = reverse_anchors if reverse_anchors is not None else [m for _, m, _ in anchors]
@@ -384,8 +389,13 @@ def compare_candidates(
         for k in searched:
             found = search(k, rows[-screen_frames:], True)
             if found is not None:
-                screened.append((found.cost, k))
-        kept = [k for _, k in sorted(screened)[:refine]] + [k for k, a in enumerate(anchors) if a[2] < 0]
+                screened.append((found.cost, k, int(found.at(int(rows[-1])))))
+        screened.sort()
+        best = screened[:refine]
+        if distinct > 0 and all(abs(entry[2] - best[0][2]) <= distinct for entry in best):
+            # all at one place: the best ending elsewhere too, for the uniqueness to compare with
+            best += [entry for entry in screened[refine:] if abs(entry[2] - best[0][2]) > distinct][:1]
+        kept = [k for _, k, _ in best] + [k for k, a in enumerate(anchors) if a[2] < 0]
     found = []
     for order, k in enumerate(kept):
         trajectory = search(k, rows, False)

@@ -177,6 +177,14 @@ class HierarchicalSequence(PlaceSequenceDetector):
             "frame rate): it is paired where the previous one is; 0: every frame moves (designed on Nordland "
             "2900-3499)"
         )
+        still: float = Field(
+            0.7, ge=0, description="a query frame is also taken as not moved when it is closer to the previous one "
+            "than this times the map's 5th-percentile distance between consecutive frames (the map moves at every "
+            "frame), and no farther than still_margin times the previous step from the frame before (a stop seen "
+            "through sensor noise: the scene does not go on); 0: off (designed on Nordland 2900-3499 and synthetic "
+            "world seeds 3-4)"
+        )
+        still_margin: float = Field(1.05, ge=1, description="see still")
         cone_after: int = Field(
             2, ge=0, description="speed_search cone: the whole cone is searched after this many inconsistent "
             "answers in a row (and before the first run settles); otherwise lines at vmin..vmax, or around the "
@@ -196,6 +204,12 @@ class HierarchicalSequence(PlaceSequenceDetector):
             3, ge=0, description="when > 0, only the best `refine` level-1 candidates over the last screen_frames "
             f"(and the track) get the full comparison; 0: all of them ({HELD_OUT}, sized so the whole Nordland "
             "route needs at least 10x fewer distances than SeqSLAM)"
+        )
+        refine_apart: bool = Field(
+            True, description="refine > 0: when the refine best screened candidates all end within "
+            "uniqueness_window map frames of the best, the best one ending farther away gets the full comparison "
+            "too (the uniqueness confidence needs a candidate apart from the best; designed on Nordland "
+            "2900-3499 and synthetic world seeds 3-4)"
         )
         screen_frames: int = Field(
             6, ge=1, description="query frames of the screening, refine > 0 (chosen on held-out Nordland 2900-3575 "
@@ -259,6 +273,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
                           c.cone_keep) if c.speed_search == "cone" else None
         self._stationary_limit: float | None = None  # calibrated at the first query frame
         self._moved = False  # the query has moved since its first frame
+        self._still_limit = 0.0  # still times the map's 5th-percentile step (calibrated with stationary)
         self._run_speeds: list[float] = []  # speeds answered along in the current run of consistent sequences
         self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
         self._wide = True  # searching the whole cone until a run settles
@@ -298,11 +313,33 @@ class HierarchicalSequence(PlaceSequenceDetector):
                 vectors = pm.vectors(pm.map_frames_at(np.arange(n_map)))
                 steps = rowwise(vectors[:-1], vectors[1:], pm.metric)  # type: ignore[arg-type]
                 limit = self.config.stationary * float(np.median(steps))
+                self._still_limit = self.config.still * float(np.percentile(steps, 5))
             self._stationary_limit = limit
         if self._stationary_limit <= 0 or not self._informative.view[-1, 0] or not bool(pm.informative([frame])[0]):
             return False  # featureless frames all look alike, moving or not
         pair = pm.vectors([self._order[-1], frame])
-        return float(rowwise(pair[:1], pair[1:], pm.metric)[0]) < self._stationary_limit  # type: ignore[arg-type]
+        step = float(rowwise(pair[:1], pair[1:], pm.metric)[0])  # type: ignore[arg-type]
+        if step < self._stationary_limit:
+            return True
+        return self._still(frame, step)
+
+    def _still(self, frame: int, step: float) -> bool:
+        """Whether a query frame is the previous place again, seen through sensor noise: its
+        distance to the previous frame is below ``still`` times the smallest steps of the map
+        (its 5th percentile: the reference traversal moves at every frame, so a step well below
+        its smallest ones is noise, not motion), and it is no farther from the frame before
+        than the previous frame is, within ``still_margin`` (a scene that goes on, however
+        slowly, moves away from it). Real traversals with frames that nearly repeat while
+        moving (Nordland's winter) have map steps near 0 too, which keeps this test off there."""
+        c = self.config
+        if c.still <= 0 or len(self._order) < 2 or step >= self._still_limit:
+            return False
+        pm = self.place_map
+        if not self._informative.view[-2, 0]:
+            return False
+        triple = pm.vectors([self._order[-2], self._order[-1], frame])
+        before = rowwise(triple[:1].repeat(2, axis=0), triple[1:], pm.metric)  # type: ignore[arg-type]
+        return float(before[1]) <= c.still_margin * float(before[0])
 
     def _pair_distances(self, positions: np.ndarray, map_positions: np.ndarray) -> np.ndarray:
         pm = self.place_map
@@ -341,7 +378,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         trajectories = compare_candidates(
             self._pairs, anchors, rows, n_map, map_informative, velocities=velocities, slack=c.anchor_slack,
             refine=c.refine, screen_frames=c.screen_frames, screen_speeds=velocities, cone=cone,
-            reverse_anchors=reverse_anchors,
+            reverse_anchors=reverse_anchors, distinct=c.uniqueness_window if c.refine_apart else 0,
         )
         if not trajectories:
             self._count("no_candidate")
