@@ -18,7 +18,7 @@ def slamfront_message_types() -> list[type]:
     from slamfront.acceptance import AcceptThreshold
     from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
     from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision
-    from slamfront_plugins.loop_detectors.hierarchical_sequence import SequenceDecision
+    from slamfront_plugins.loop_detectors.hierarchical_records import SequenceDecision
 
     return [AcceptThreshold, BowStatistics, SequenceDecision, FaithfulSequenceDecision]
 
