@@ -283,3 +283,20 @@ def test_a_campaign_worker_cannot_send_back_a_file_outside_its_run_folder(tmp_pa
     store.save_files(folder, {"plots/pr.png": b"png"})
     assert (folder / "plots" / "pr.png").read_bytes() == b"png"
     assert not (tmp_path / "escaped.txt").exists()
+
+
+def test_optimize_refuses_a_folder_another_command_is_writing(tmp_path: Path, cli) -> None:
+    """`optimize -o DIR` takes the folder's lock too: a second writer would leave a mix of both."""
+    graph = tmp_path / "square.g2o"
+    graph.write_text(
+        "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nVERTEX_SE2 2 1 1 0\nVERTEX_SE2 3 0 1 0\n"
+        + "".join(f"EDGE_SE2 {i} {i + 1} 1 0 1.5708 1 0 0 1 0 1\n" for i in range(3))
+        + "EDGE_SE2 3 0 1 0 1.5708 1 0 0 1 0 1\n"
+    )
+    out = tmp_path / "out"
+    with folder_lock(out, "run"):
+        code, _, err = cli("optimize", str(graph), "-o", str(out), "--no-plots")
+        assert_one_line_error(code, err, str(out), "another run", "is using this folder")
+    code, _, err = cli("optimize", str(graph), "-o", str(out), "--no-plots")
+    assert code == 0, err
+    assert (out / "optimized.g2o").is_file()

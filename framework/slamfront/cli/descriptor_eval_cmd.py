@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slamfront.errors import DataError, PluginError
-from slamfront.outputs import make_folder, write_atomically
+from slamfront.outputs import folder_lock, write_atomically
 
 if TYPE_CHECKING:
     import numpy as np
@@ -116,11 +116,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise DataError(f"{args.source}: {exc}") from None
     out = args.out or Path("logs") / "descriptor_eval" / label
-    make_folder(out)
-    figures = _plots(study, out)
     metrics = {"source": args.source, "n_frames": study.n_frames, "targets": study.targets, **_tables(study)}
-    write_atomically(out / "metrics.json", json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
-    write_atomically(out / "report.md", _report(study, args.source, figures))
+    with folder_lock(out, "eval descriptors"):  # one writer per folder: never a mix of two studies' files
+        figures = _plots(study, out)
+        write_atomically(out / "metrics.json", json.dumps(metrics, indent=2, default=_plain, allow_nan=False) + "\n")
+        write_atomically(out / "report.md", _report(study, args.source, figures))
     if args.json:
         print(json.dumps(metrics, indent=2, default=_plain))
     else:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from slamfront.cli.arguments import frame_count
 from slamfront.errors import RecipeError
-from slamfront.outputs import make_folder, write_atomically
+from slamfront.outputs import folder_lock, write_atomically
 
 
 def add_parser(commands: argparse._SubParsersAction) -> None:
@@ -50,15 +50,15 @@ def run(args: argparse.Namespace) -> int:
         for label, extra in variants.items()
     }
     out = args.out or Path("logs") / f"{Path(args.recipe).stem}-retrieval"
-    make_folder(out)
     ks = np.arange(1, args.max_k + 1)
-    figure = plots.recall_curves({label: (ks, curve) for label, curve in curves.items()}, out / "retrieval.png",
-                                 title="correct reference among the psi nearest descriptors")
     header = "| psi | " + " | ".join(curves) + " |"
     rows = [f"| {k} | " + " | ".join(f"{curve[k - 1]:.4f}" for curve in curves.values()) + " |" for k in ks]
     table = "\n".join([header, "|" + " --- |" * (len(curves) + 1), *rows])
-    write_atomically(out / "retrieval.md", f"# Descriptor retrieval: {args.recipe}\n\n{table}\n\n![retrieval](retrieval.png)\n")
-    write_atomically(out / "retrieval.json", json.dumps({k: [float(v) for v in c] for k, c in curves.items()}, indent=2) + "\n")
+    with folder_lock(out, "retrieval"):  # one writer per folder: never a mix of two studies' files
+        figure = plots.recall_curves({label: (ks, curve) for label, curve in curves.items()}, out / "retrieval.png",
+                                     title="correct reference among the psi nearest descriptors")
+        write_atomically(out / "retrieval.md", f"# Descriptor retrieval: {args.recipe}\n\n{table}\n\n![retrieval](retrieval.png)\n")
+        write_atomically(out / "retrieval.json", json.dumps({k: [float(v) for v in c] for k, c in curves.items()}, indent=2) + "\n")
     print(table)
     print(f"plot:  {figure}")
     return 0

@@ -18,7 +18,7 @@ import numpy as np
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.graph_files import GraphFormat
 from slamfront.core.posegraph import PoseGraph
-from slamfront.outputs import make_folder
+from slamfront.outputs import folder_lock
 from slamfront.posegraph import report
 from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_text, write_tum
 from slamfront.posegraph.solver import OptimizationResult, SolverOptions, optimize
@@ -87,35 +87,36 @@ def optimize_file(
         metrics["ate_rmse_after_m"] = ate_rmse(result.poses[:, :d, d], truth)
         metrics["ground_truth"] = str(ground_truth) if ground_truth is not None else "from the log"
 
-    make_folder(out_dir)
-    files = [
-        write_g2o(out_dir / "optimized.g2o", graph, result.poses),
-        write_tum(out_dir / "trajectory.tum", graph, result.poses, loaded.timestamps),
-        write_tum(out_dir / "initial.tum", graph, result.initial, loaded.timestamps),
-    ]
-    figures, plot_failure = [], ""
-    if plots:
-        try:
-            figures.append(_plot(out_dir / "before_after.png", graph_path, graph, result, truth, options))
-        except Exception as exc:  # noqa: BLE001 - the results stand; the failure is reported, never hidden
-            plot_failure = f"before_after.png: the plot failed: {type(exc).__name__}: {exc}"
-            metrics["plot_failed"] = plot_failure
-            with contextlib.suppress(OSError):  # an older run's plot must not sit beside these results
-                (out_dir / "before_after.png").unlink(missing_ok=True)
-    files += figures
-    markdown = [
-        f"# Pose-graph optimisation: {Path(graph_path).name}",
-        "",
-        report.metrics_table(metrics, SHOWN),
-        "",
-        "Cost is GTSAM's objective: half the sum of squared whitened residuals (through the kernel).",
-        "ATE: RMSE of vertex positions after a rigid alignment to the ground truth.",
-        "",
-        *(f"![{f.name}]({f.name})\n" for f in figures),
-        *([f"**The plot failed**: {plot_failure}\n"] if plot_failure else []),
-    ]
-    files.append(write_text(out_dir / "report.md", "\n".join(markdown) + "\n"))
-    files.append(write_json_atomically(out_dir / "metrics.json", metrics))
+    # one optimize at a time per folder: two writing the same files would leave a mix of both
+    with folder_lock(out_dir, "optimize"):
+        files = [
+            write_g2o(out_dir / "optimized.g2o", graph, result.poses),
+            write_tum(out_dir / "trajectory.tum", graph, result.poses, loaded.timestamps),
+            write_tum(out_dir / "initial.tum", graph, result.initial, loaded.timestamps),
+        ]
+        figures, plot_failure = [], ""
+        if plots:
+            try:
+                figures.append(_plot(out_dir / "before_after.png", graph_path, graph, result, truth, options))
+            except Exception as exc:  # noqa: BLE001 - the results stand; the failure is reported, never hidden
+                plot_failure = f"before_after.png: the plot failed: {type(exc).__name__}: {exc}"
+                metrics["plot_failed"] = plot_failure
+                with contextlib.suppress(OSError):  # an older run's plot must not sit beside these results
+                    (out_dir / "before_after.png").unlink(missing_ok=True)
+        files += figures
+        markdown = [
+            f"# Pose-graph optimisation: {Path(graph_path).name}",
+            "",
+            report.metrics_table(metrics, SHOWN),
+            "",
+            "Cost is GTSAM's objective: half the sum of squared whitened residuals (through the kernel).",
+            "ATE: RMSE of vertex positions after a rigid alignment to the ground truth.",
+            "",
+            *(f"![{f.name}]({f.name})\n" for f in figures),
+            *([f"**The plot failed**: {plot_failure}\n"] if plot_failure else []),
+        ]
+        files.append(write_text(out_dir / "report.md", "\n".join(markdown) + "\n"))
+        files.append(write_json_atomically(out_dir / "metrics.json", metrics))
     run = OptimizeRun(out_dir, metrics, result, files)
     if plot_failure:
         raise PlotFailed(plot_failure, run)
