@@ -90,3 +90,12 @@ def test_relative_data_paths_resolve_under_the_data_root(monkeypatch, tmp_path: 
 def test_shipped_recipes_by_name() -> None:
     recipe, path = load_recipe("demo")
     assert path == recipes_dir() / "demo.yaml" and recipe.name == "demo"
+
+
+def test_a_folder_named_like_a_shipped_recipe_does_not_hide_it(tmp_path, monkeypatch) -> None:
+    """`slamfront run demo -o demo` leaves a folder `demo`; the next `slamfront run demo` still finds the recipe."""
+    from slamfront.recipe import find_recipe
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "demo").mkdir()
+    assert find_recipe("demo").name == "demo.yaml" and find_recipe("demo").is_file()

@@ -135,14 +135,18 @@ def recipes_dir() -> Path:
 
 def find_named_file(name_or_path: str | Path, folder: Path, what: str, hint: str) -> Path:
     """A path as given; for a bare name, ``<name>.yaml`` in the current directory, else the
-    shipped ``folder/<name>.yaml``. The user's own file always wins over a shipped one."""
+    shipped ``folder/<name>.yaml``. The user's own file always wins over a shipped one; a
+    folder of that name (``slamfront run demo -o demo`` makes one) does not hide a recipe."""
     path = Path(name_or_path)
-    if path.exists():
+    bare = path.suffix == "" and path.name == str(name_or_path)
+    if path.exists() and not (bare and path.is_dir()):
         return path
-    if path.suffix == "" and path.name == str(name_or_path):
+    if bare:
         for candidate in (path.with_name(f"{path.name}.yaml"), folder / f"{path.name}.yaml"):
             if candidate.is_file():
                 return candidate
+    if path.exists():
+        return path  # a folder named as given, and no recipe of that name: the reader says so
     raise RecipeError(f"{name_or_path}: no such {what} file ({hint})")
 
 
