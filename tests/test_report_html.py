@@ -114,3 +114,13 @@ def test_a_comparison_links_every_run_and_renders(cli, tmp_path: Path) -> None:
         assert sorted(run_links) == sorted(f"{row['run']}/report.html" for row in rows)
         assert all((out / link).is_file() for link in run_links)
     assert "report.html" in open_page(out / "comparison.html").links  # and to the campaign's page
+
+
+def test_a_detector_that_accepts_nothing_is_not_given_a_precision() -> None:
+    metrics = {"recall_at_100p": 0.9, "auc_pr": 0.9, "precision_at_operating_point": 0.0,
+               "recall_at_operating_point": 0.0, "n_accepted": 0, "accept_threshold": 0.9, "accept_auto": 0}
+    line = next(s for s in headline(metrics) if s.startswith("loop closure"))
+    assert "it accepts 0 answers (no loop closure reaches its threshold)" in line and "precision 0.000" not in line
+    metrics.update(n_accepted=3, precision_at_operating_point=1.0, recall_at_operating_point=0.5)
+    line = next(s for s in headline(metrics) if s.startswith("loop closure"))
+    assert "it accepts 3 answers: precision 1.000, recall 0.500" in line

@@ -30,9 +30,12 @@ def headline(metrics: dict[str, Any]) -> list[str]:
                 how = "calibrated" if m.get("accept_auto") else "given"
                 line += f" (confidence >= {m['accept_threshold']:.3g}, {how})"
             if _number(m, "n_accepted"):
-                line += f" it accepts {m['n_accepted']} answers:"
-            line += (f" precision {m['precision_at_operating_point']:.3f}, "
-                     f"recall {m['recall_at_operating_point']:.3f}")
+                line += f" it accepts {m['n_accepted']} answers"
+            if m.get("n_accepted") == 0:
+                line += " (no loop closure reaches its threshold)"  # a precision of nothing is no number
+            else:
+                line += (f"{':' if _number(m, 'n_accepted') else ''} precision {m['precision_at_operating_point']:.3f}, "
+                         f"recall {m['recall_at_operating_point']:.3f}")
         lines.append(line)
     if _number(m, "n_loop_constraints_added", "n_loop_constraints_added_false"):
         skipped = m.get("n_loop_constraints_skipped")
