@@ -11,10 +11,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Header, Message, Metadata
 from mcap.writer import CompressionType, Writer
 
-from slamfront.mcaplog.scan import RecordScanner
+from tests.helpers import scanned_records
 
 
 @dataclass(frozen=True)
@@ -42,27 +42,18 @@ class LogContent:
 
 def read_content(path: Path) -> LogContent:
     """Every record of an undamaged log, in file order."""
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
     content = LogContent("", [], [], [])
-    with open(path, "rb") as stream:
-        for record in RecordScanner(stream, path.stat().st_size).records():
-            if isinstance(record, Header):
-                content.library = record.library
-            elif isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                channel = channels[record.channel_id]
-                schema = schemas[channel.schema_id]
-                content.messages.append(Entry(
-                    channel.topic, schema.name, schema.encoding, bytes(schema.data), channel.message_encoding,
-                    record.log_time, record.publish_time, record.sequence, bytes(record.data)))
-            elif isinstance(record, Metadata):
-                content.metadata.append((record.name, dict(record.metadata)))
-            elif isinstance(record, Attachment):
-                content.attachments.append((record.name, record.media_type, record.log_time, bytes(record.data)))
+    for record, channel, schema in scanned_records(path):
+        if isinstance(record, Header):
+            content.library = record.library
+        elif isinstance(record, Message):
+            content.messages.append(Entry(
+                channel.topic, schema.name, schema.encoding, bytes(schema.data), channel.message_encoding,
+                record.log_time, record.publish_time, record.sequence, bytes(record.data)))
+        elif isinstance(record, Metadata):
+            content.metadata.append((record.name, dict(record.metadata)))
+        elif isinstance(record, Attachment):
+            content.attachments.append((record.name, record.media_type, record.log_time, bytes(record.data)))
     return content
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,18 +39,10 @@ def rewrite_log(
     """Copy a log record by record; ``change(topic, index in topic, data)`` may alter a
     message (return new bytes) or drop it (return None); ``attachment(name, data)`` may
     alter an attachment. Metadata are kept."""
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
     counts: dict[str, int] = {}
-    with open(source, "rb") as stream, RunLogWriter(target, chunk_size=1 << 16) as log:
-        for record in RecordScanner(stream, source.stat().st_size).records():
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                channel = channels[record.channel_id]
-                schema = schemas[channel.schema_id]
+    with RunLogWriter(target, chunk_size=1 << 16) as log:
+        for record, channel, schema in scanned_records(source):
+            if isinstance(record, Message):
                 index = counts.get(channel.topic, 0)
                 counts[channel.topic] = index + 1
                 data = change(channel.topic, index, bytes(record.data))
@@ -62,6 +54,24 @@ def rewrite_log(
             elif isinstance(record, Attachment):
                 log.add_attachment(record.name, record.media_type, attachment(record.name, bytes(record.data)),
                                    record.log_time)
+
+
+def scanned_records(path: Path) -> Iterator[tuple[Any, Any, Any]]:
+    """Every record of a log in file order, as ``(record, channel, schema)``: a message's
+    channel and schema resolved from the records before it, None for any other record."""
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    with open(path, "rb") as stream:
+        for record in RecordScanner(stream, path.stat().st_size).records():
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                yield record, channel, schemas[channel.schema_id]
+                continue
+            yield record, None, None
 
 
 def stage_topic_bytes(path: Path, prefix: str) -> dict[str, list[bytes]]:
