@@ -224,7 +224,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._confidence_kind: str | None = None if c.confidence == "auto" else c.confidence
 
     def _seen(self, frame: int) -> None:
-        if self._order and self._stationary(frame):
+        informative = self.place_map.informative([frame])
+        if self._order and self._stationary(frame, bool(informative[0])):
             # not moved: it shares the previous frame's position, once the query has started moving (a
             # recording often starts with an idle or frozen camera that datasets still pair frame by frame:
             # Nordland's winter traversal opens with 17 identical frames its ground truth pairs with 17
@@ -237,9 +238,9 @@ class HierarchicalSequence(PlaceSequenceDetector):
             self._moved = True
         self._position[frame] = len(self._order)
         self._order.append(frame)
-        self._informative.append(self.place_map.informative([frame]))
+        self._informative.append(informative)
 
-    def _stationary(self, frame: int) -> bool:
+    def _stationary(self, frame: int, informative: bool) -> bool:
         """Whether a query frame shows what the previous one showed: its distance to it is
         below ``stationary`` times the median distance between consecutive map frames
         (calibrated on the map, i.e. the reference traversal, at the first query frame; 0 in a
@@ -254,7 +255,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
                 limit = self.config.stationary * float(np.median(steps))
                 self._still_limit = self.config.still * float(np.percentile(steps, 5))
             self._stationary_limit = limit
-        if self._stationary_limit <= 0 or not self._informative.view[-1, 0] or not bool(pm.informative([frame])[0]):
+        if self._stationary_limit <= 0 or not self._informative.view[-1, 0] or not informative:
             return False  # featureless frames all look alike, moving or not
         pair = pm.vectors([self._order[-1], frame])
         step = float(rowwise(pair[:1], pair[1:], pm.metric)[0])  # type: ignore[arg-type]
