@@ -250,25 +250,28 @@ def test_a_run_killed_just_after_writing_an_output_leaves_it_vouched_for(tmp_pat
 
 
 def test_every_writer_replaces_a_planted_link_instead_of_writing_through_it(tmp_path: Path) -> None:
-    """The writers outside run folders (models, maps, pose graphs, campaign tables) rename onto
+    """The writers outside run folders (models, pose graphs) rename onto
     their path too: a link planted there, or at the temporary name beside it, is never followed."""
     import numpy as np
 
     from slamfront.formats.ply import write_ply
-    from slamfront.posegraph.io import write_text
+    from slamfront.posegraph.io import read_graph, write_g2o
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     out = tmp_path / "out"
     out.mkdir()
-    for name in ("model.ply", "report.md", "model.ply.tmp", "report.md.tmp"):
+    source = tmp_path / "line.g2o"
+    source.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    graph = read_graph(source).parsed.graph
+    for name in ("model.ply", "graph.g2o", "model.ply.tmp", "graph.g2o.tmp"):
         (elsewhere / name).write_text("the user's file\n")
         (out / name).symlink_to(elsewhere / name)
     write_ply(out / "model.ply", np.zeros((4, 3), np.float32))
-    write_text(out / "report.md", "# a report\n")
-    for name in ("model.ply", "report.md", "model.ply.tmp", "report.md.tmp"):
+    write_g2o(out / "graph.g2o", graph, graph.poses)
+    for name in ("model.ply", "graph.g2o", "model.ply.tmp", "graph.g2o.tmp"):
         assert (elsewhere / name).read_text() == "the user's file\n"
-    assert not (out / "model.ply").is_symlink() and (out / "report.md").read_text() == "# a report\n"
+    assert not (out / "model.ply").is_symlink() and (out / "graph.g2o").read_text().startswith("VERTEX_SE2 0")
 
 
 def test_a_campaign_worker_cannot_send_back_a_file_outside_its_run_folder(tmp_path: Path) -> None:

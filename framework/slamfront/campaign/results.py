@@ -128,7 +128,7 @@ def write_csv(table: ResultsTable, path: Path) -> Path:
     writer.writerow(table.columns)
     for row in table.rows:
         writer.writerow([cell(row.get(c)) for c in table.columns])
-    return _replace(path, buffer.getvalue())
+    return write_atomically(path, buffer.getvalue())
 
 
 def write_json(table: ResultsTable, sweep: Sweep, sweep_path: Path, path: Path) -> Path:
@@ -142,9 +142,4 @@ def write_json(table: ResultsTable, sweep: Sweep, sweep_path: Path, path: Path) 
         "timing_columns": table.timing_columns,
         "runs": [{**row, "metrics": values} for row, values in zip(table.rows, table.all_metrics)],
     }
-    return _replace(path, json.dumps(document, indent=2, default=str) + "\n")
-
-
-def _replace(path: Path, text: str) -> Path:
-    """Write through a temporary file: an interrupted write never leaves half a table."""
-    return write_atomically(path, text)
+    return write_atomically(path, json.dumps(document, indent=2, default=str) + "\n")

@@ -17,6 +17,7 @@ from slamfront.core.graph_files import RECORDS, GraphFormat, ParsedGraph, format
 from slamfront.core.posegraph import PoseGraph, compose_initial_poses
 from slamfront.errors import DataError
 from slamfront.formats import poses as pose_files
+from slamfront.outputs import write_atomically
 
 
 def read_lines(path: Path) -> list[str]:
@@ -216,17 +217,9 @@ def _trajectory_positions(trajectory: pose_files.Trajectory, kind: str, graph: P
     return positions[graph.ids]
 
 
-def write_text(path: Path, text: str) -> Path:
-    """Write through a temporary file and a rename: a crash never leaves half a file, and a
-    link planted at ``path`` is replaced, never followed."""
-    from slamfront.outputs import write_atomically
-
-    return write_atomically(path, text)
-
-
 def write_g2o(path: Path, graph: PoseGraph, poses: np.ndarray) -> Path:
     """The graph with ``poses`` as its vertices, as g2o."""
-    return write_text(path, format_g2o(graph, poses))
+    return write_atomically(path, format_g2o(graph, poses))
 
 
 def write_tum(path: Path, graph: PoseGraph, poses: np.ndarray, timestamps: np.ndarray | None = None) -> Path:

@@ -21,8 +21,8 @@ from tqdm import tqdm
 
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.posegraph import PoseGraph, random_false_closures
-from slamfront.outputs import make_folder
-from slamfront.posegraph.io import read_graph, read_ground_truth, write_text
+from slamfront.outputs import make_folder, write_atomically
+from slamfront.posegraph.io import read_graph, read_ground_truth
 from slamfront.posegraph.kernels import METHODS, RATES
 from slamfront.posegraph.solver import SolverOptions, objective, optimize
 from slamfront.report.plots import _pyplot, save_figure
@@ -176,8 +176,8 @@ def write(rows: Sequence[StudyRow], out_dir: Path, plots: bool = True) -> list[P
     """``outliers.md`` (table), ``outliers.json`` (rows) and ``outliers.png`` in ``out_dir``."""
     make_folder(out_dir)
     files = [
-        write_text(out_dir / "outliers.md", "# Outlier study\n\n" + table(rows) + "\n"),
-        write_text(out_dir / "outliers.json", json.dumps([asdict(r) for r in rows], indent=1) + "\n"),
+        write_atomically(out_dir / "outliers.md", "# Outlier study\n\n" + table(rows) + "\n"),
+        write_atomically(out_dir / "outliers.json", json.dumps([asdict(r) for r in rows], indent=1) + "\n"),
     ]
     if plots and rows:
         files.append(plot(rows, out_dir / "outliers.png"))

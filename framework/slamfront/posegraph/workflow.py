@@ -18,9 +18,9 @@ import numpy as np
 from slamfront.core.alignment import ate_rmse
 from slamfront.core.graph_files import GraphFormat
 from slamfront.core.posegraph import PoseGraph
-from slamfront.outputs import folder_lock
+from slamfront.outputs import folder_lock, write_atomically
 from slamfront.posegraph import report
-from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_text, write_tum
+from slamfront.posegraph.io import read_graph, read_ground_truth, write_g2o, write_tum
 from slamfront.posegraph.solver import OptimizationResult, SolverOptions, optimize
 from slamfront.report.metrics_file import write_json_atomically
 
@@ -115,7 +115,7 @@ def optimize_file(
             *(f"![{f.name}]({f.name})\n" for f in figures),
             *([f"**The plot failed**: {plot_failure}\n"] if plot_failure else []),
         ]
-        files.append(write_text(out_dir / "report.md", "\n".join(markdown) + "\n"))
+        files.append(write_atomically(out_dir / "report.md", "\n".join(markdown) + "\n"))
         files.append(write_json_atomically(out_dir / "metrics.json", metrics))
     run = OptimizeRun(out_dir, metrics, result, files)
     if plot_failure:
