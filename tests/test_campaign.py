@@ -171,8 +171,8 @@ def test_a_crashing_worker_fails_only_its_run(cli, tmp_path: Path, monkeypatch: 
     }, recipe)
     code, stdout, stderr = cli("sweep", sweep, "-o", tmp_path / "out", "--workers", "2", "-q")
     assert code == 1, stderr
-    assert "4 (4 ran now, 0 already finished): 2 ok, 2 failed" in stdout
     rows = read_rows(tmp_path / "out")
+    assert "4 (4 ran now, 0 already finished): 2 ok, 2 failed" in stdout, (rows, stderr)
     assert [row["status"] for row in rows] == ["failed", "ok", "ok", "failed"]
     assert [row["n_frames"] for row in rows] == ["", "20", "20", ""]
     assert all("worker process died" in rows[i]["error"] for i in (0, 3))

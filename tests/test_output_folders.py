@@ -21,6 +21,7 @@ import yaml
 
 from slamfront.errors import SlamfrontError
 from slamfront.mcaplog.reader import read_messages
+from slamfront.mcaplog.writer import RunLogWriter
 from slamfront.outputs import LOCK_FILE, MANIFEST, claim_run_folder, folder_lock
 from tests.test_hostile_inputs import BASE_RECIPE, SINGLE_THREADED, assert_one_line_error
 
@@ -138,6 +139,41 @@ def test_a_rerun_after_a_killed_run_keeps_the_files_added_since(tmp_path: Path, 
     assert "held a previous run" in err  # the killed run's log, vouched for by the hash of what it had synced
     assert {path: _digest(path) for path in mine} == mine
     assert [m.decoded.message for m in read_messages(out / "run.mcap", ["/log"])][-1].startswith("run completed")
+
+
+def test_a_run_stopped_before_its_first_sync_can_be_rerun(tmp_path: Path) -> None:
+    # A campaign worker SIGTERMed beside a crashing one can die between creating its log and
+    # the first fsync; the log's inode is on record from its creation, so its rerun goes ahead.
+    out = tmp_path / "out"
+    folder = claim_run_folder(out)
+    log = RunLogWriter(out / "run.mcap", on_sync=folder.log_synced)
+    log._stream.write(b"\x89MCAP0\r\n" * 2000)  # bytes on disk, never synced
+    log._stream.flush()
+    folder.lock.release()  # the process is gone: no close, no record of the log's content
+    mine = _users_files(out)
+    again = claim_run_folder(out)
+    again.close()
+    assert not (out / "run.mcap").exists()
+    assert {path: _digest(path) for path in mine} == mine
+    # stopped inside close(): the run records itself ended, then the log's buffer reaches the disk at exit
+    stopped = claim_run_folder(out)
+    log = RunLogWriter(out / "run.mcap", on_sync=stopped.log_synced)
+    log.sync()
+    log._stream.write(b"\0" * 100)
+    stopped.close()
+    log._stream.flush()
+    again = claim_run_folder(out)
+    again.close()
+    assert not (out / "run.mcap").exists()
+    # a file of that name on another inode (the user's own, put there since) is never taken for that log
+    killed = claim_run_folder(out)
+    RunLogWriter(out / "run.mcap", on_sync=killed.log_synced)
+    killed.lock.release()
+    (out / "run.mcap").unlink()
+    (out / "run.mcap").write_bytes(b"mine")
+    with pytest.raises(SlamfrontError, match="vouches"):
+        claim_run_folder(out)
+    assert (out / "run.mcap").read_bytes() == b"mine"
 
 
 def test_a_crafted_manifest_deletes_nothing_of_the_users(tmp_path: Path, recipe: Path, cli) -> None:

@@ -308,15 +308,29 @@ def _vouched(folder: Path, manifest: dict[str, Any], present: dict[str, os.stat_
         if not isinstance(size, int) or isinstance(size, bool) or not isinstance(digest, str) or len(digest) != 64:
             continue
         if entry.get("prefix") is True:
-            # a run that never ended: its log is vouched for by what it had fsynced, on the same inode
-            partial = manifest.get("complete") is False and name == "run.mcap" and size > 0
+            # a log whose writer never finished: vouched for by what it had fsynced, on the same inode
+            partial = name == "run.mcap" and size >= 0
             if not partial or [entry.get("dev"), entry.get("ino")] != [info.st_dev, info.st_ino]:
                 continue
-            if info.st_size >= size and _digest(folder / name, size) == digest:
+            if info.st_size >= size and _digest(folder / name, size) == digest and (size > 0 or _starts_a_log(folder / name)):
                 vouched.add(name)
         elif info.st_size == size and _digest(folder / name) == digest:
             vouched.add(name)
     return vouched
+
+
+def _starts_a_log(path: Path) -> bool:
+    """``path`` is empty or begins like an MCAP file: a log created but never synced (its
+    inode alone could have been reused by a file of the user's since)."""
+    from slamfront.mcaplog.scan import MAGIC  # the log package writes through this module
+
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return False
+    with os.fdopen(fd, "rb") as stream:
+        head = stream.read(len(MAGIC))
+    return MAGIC.startswith(head)
 
 
 @dataclass
@@ -334,6 +348,9 @@ class RunFolder:
     replaced: list[str] = field(default_factory=list)
     """Files of a previous run that were removed."""
     _log: dict[str, Any] | None = None
+    _log_finished: bool = False
+    """The log's writer closed the file: ``_log`` is all of it (else a prefix; a stopped
+    writer's buffer may still reach the disk as the process exits)."""
     _digests: dict[tuple[int, int, int, int], str] = field(default_factory=dict)
     _announced: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Files about to be renamed into place (:meth:`announce`), by name: size and SHA-256."""
@@ -344,12 +361,14 @@ class RunFolder:
             name: info for name, info in _files(self.path).items() if self.before.get(name) != (info.st_dev, info.st_ino)
         }
 
-    def log_synced(self, size: int, sha256: str) -> None:
+    def log_synced(self, size: int, sha256: str, finished: bool = False) -> None:
         """The log ``run.mcap`` has its first ``size`` bytes on disk, hashing to ``sha256``:
-        a rerun after a kill may then remove it (its writer calls this after each fsync)."""
+        a rerun after a kill may then remove it (its writer calls this on creation, after each
+        fsync and, with ``finished``, after closing the file)."""
         with contextlib.suppress(OSError):
             info = os.stat(self.path / "run.mcap", follow_symlinks=False)
             self._log = {"size": size, "sha256": sha256, "prefix": True, "dev": info.st_dev, "ino": info.st_ino}
+            self._log_finished = finished
             self.record(complete=False)
 
     def announce(self, path: Path, size: int, sha256: str) -> None:
@@ -365,14 +384,16 @@ class RunFolder:
         files: dict[str, dict[str, Any]] = dict(self._announced)
         for name, info in self.written().items():
             log = self._log if name == "run.mcap" and self._log is not None else None
-            if complete and log is not None and [log["dev"], log["ino"], log["size"]] == [
+            if complete and log is not None and self._log_finished and [log["dev"], log["ino"], log["size"]] == [
                 info.st_dev, info.st_ino, info.st_size
             ]:
                 files[name] = {"size": log["size"], "sha256": log["sha256"]}  # the whole log, as its writer hashed it
                 continue
-            if name == "run.mcap" and not complete:
+            if log is not None or (name == "run.mcap" and not complete):
+                # the log is being written, or its writer was stopped before it could finish
+                # (its buffer may still reach the disk): what its last fsync put there
                 if log is not None:
-                    files[name] = log  # the log is being written: what its last fsync put on disk
+                    files[name] = log
                 continue
             key = _identity(info)
             if key not in self._digests:

@@ -132,7 +132,9 @@ class LocalBackend:
                     if lost:  # every run still in flight went down with the pool
                         lost += in_flight.values()
                         in_flight.clear()
-                        self._stop(kill=True)
+                        # the pool has already sent SIGTERM to its other workers: a second one
+                        # would cut short the log a stopped run is finalising
+                        self._stop(kill=False)
                         pool = self._start()
                         if len(lost) == 1:
                             yield died(lost[0], "the worker process died while running it (a crash in native "

@@ -94,8 +94,9 @@ class RunLogWriter:
         when a chunk is full and at the end).
     :param critical: a context manager factory wrapped around every change to the file,
         so a signal cannot cut a record in two (see :class:`slamfront.interrupts.Interrupts`).
-    :param on_sync: called after each fsync (and after closing) with the size of the file
-        and the SHA-256 of its bytes (:meth:`slamfront.outputs.RunFolder.log_synced`).
+    :param on_sync: called on creation, after each fsync and after closing with the size of
+        the file, the SHA-256 of its bytes and whether the file is finished
+        (:meth:`slamfront.outputs.RunFolder.log_synced`).
     """
 
     def __init__(
@@ -106,17 +107,22 @@ class RunLogWriter:
         library: str = "slamfront",
         sync_seconds: float | None = None,
         critical: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext,
-        on_sync: Callable[[int, str], None] | None = None,
+        on_sync: Callable[[int, str, bool], None] | None = None,
     ) -> None:
         self.path = Path(path)
-        try:
-            self._stream = _HashedStream(open_output(self.path))
-        except SlamfrontError as exc:
-            raise LogError(str(exc)) from None
-        except OSError as exc:
-            raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
         self._critical = critical
         self._on_sync = on_sync
+        # Created and vouched for (an empty prefix on this inode) before a signal can land:
+        # a run stopped before its first fsync leaves a log the next run may replace.
+        with critical():
+            try:
+                self._stream = _HashedStream(open_output(self.path))
+            except SlamfrontError as exc:
+                raise LogError(str(exc)) from None
+            except OSError as exc:
+                raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
+            if on_sync is not None:
+                on_sync(0, self._stream.sha256.hexdigest(), False)
         self._failed = False
         # data CRCs: readers can check every byte of the data section without opening a chunk
         self._writer = Writer(
@@ -297,7 +303,7 @@ class RunLogWriter:
         self._last_sync = time.monotonic()
         self.n_syncs += 1
         if self._on_sync is not None:
-            self._on_sync(self._stream.size, self._stream.sha256.hexdigest())
+            self._on_sync(self._stream.size, self._stream.sha256.hexdigest(), False)
 
     def sync(self) -> None:
         """Put everything written so far on disk now (closes the current chunk)."""
@@ -311,20 +317,22 @@ class RunLogWriter:
         """Write the summary and footer, fsync and close the file. Safe to call twice."""
         if self._closed:
             return
-        self._closed = True
         if self._failed:  # finishing would only fail again; keep what is on disk as it is
+            self._closed = True
             with contextlib.suppress(OSError):
                 self._stream.close()
             return
         with self._changing():
+            self._closed = True  # in the section: a signal cannot leave the log marked closed but unfinished
             try:
                 self._writer.finish()
                 self._stream.flush()
                 os.fsync(self._stream.fileno())
             finally:
                 self._stream.close()
-        if self._on_sync is not None:  # the whole file: its hash without reading it back
-            self._on_sync(self._stream.size, self._stream.sha256.hexdigest())
+            # inside the section: a signal that arrived while finishing must not skip the record
+            if self._on_sync is not None:  # the whole file: its hash without reading it back
+                self._on_sync(self._stream.size, self._stream.sha256.hexdigest(), True)
 
     def __enter__(self) -> RunLogWriter:
         return self
