@@ -4,6 +4,7 @@ video; and what a user sees when a recording is not what the recipe says."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import struct
 from pathlib import Path
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
+from slamfront.core.retiming import equal_distance
 from slamfront.frame import Frame
 from slamfront.undistort import Undistortion
 from slamfront_plugins.sources.euroc import Euroc
@@ -137,7 +139,7 @@ def test_images_without_depth_or_pose_in_tolerance_are_dropped_and_counted(
     assert [f.sequence_index for f in got] == [i for i in range(len(frames)) if i not in (3, 5, 7)]
     assert source.statistics() == {
         "n_images_read": len(frames), "n_frames_dropped": 3, "n_frames_dropped_no_depth": 2,
-        "n_frames_dropped_no_pose": 1, "n_frames_dropped_out_of_order": 0,
+        "n_frames_dropped_no_pose": 1, "n_frames_dropped_out_of_order": 0, "n_frames_resampled_out": 0,
     }
     assert [f.index for f in got] == list(range(len(got)))
     recipe = {
@@ -281,6 +283,31 @@ def test_kitti_odometry_reads_calib_times_and_poses(frames: list[Frame], tmp_pat
         assert mine.image.ndim == (2 if camera == "image_0" else 3)
     truth = source.loop_ground_truth()
     assert truth is not None and len(truth.queries) == len(got)
+
+
+def test_recordings_with_poses_resample_to_equal_distance(frames: list[Frame], tmp_path: Path, cli: Any) -> None:
+    """SMART (Pepperell et al. 2014) on a recording: a stop keeps one frame, the rest one per resample_m."""
+    dt = frames[1].timestamp - frames[0].timestamp
+    stopped = frames[:5] + [dataclasses.replace(frames[4], timestamp=frames[4].timestamp + k * dt / 4) for k in (1, 2, 3)]
+    stopped += frames[5:]
+    truth = equal_distance(np.array([f.pose[:3, 3] for f in frames]), 5.0).tolist()  # 6 m per frame: all of them
+    assert truth == list(range(len(frames)))
+    spec = BagSpec()
+    bag = RosBag(RosBag.Config(**spec.source_params(write_bag(tmp_path / "bag", stopped, spec)), resample_m=5.0))
+    got = list(bag.frames())
+    assert [f.timestamp for f in got] == pytest.approx([f.timestamp for f in frames], abs=1e-9)
+    assert bag.statistics()["n_frames_resampled_out"] == 3 and bag.statistics()["n_frames_dropped"] == 0
+    assert len(bag.loop_ground_truth().queries) == len(frames)
+    wide = equal_distance(np.array([f.pose[:3, 3] for f in frames]), 12.0).tolist()
+    euroc = Euroc(Euroc.Config(root=write_euroc(tmp_path / "MH_01", frames), resample_m=12.0, start=1))
+    assert [f.sequence_index for f in euroc.frames()] == [1 + i for i in equal_distance(
+        np.array([f.pose[:3, 3] for f in frames[1:]]), 12.0)]
+    kitti = KittiOdometry(KittiOdometry.Config(root=write_kitti(tmp_path / "kitti", frames), resample_m=12.0))
+    assert [f.sequence_index for f in kitti.frames()] == wide and len(kitti) == len(wide)
+    assert len(kitti.loop_ground_truth().queries) == len(wide)
+    code, _, err = cli("run", "demo", "--set", "source.plugin=euroc", "--set", "source.params={root: x, resample_m: 1, "
+                       "ground_truth: false}", "-o", tmp_path / "out")
+    assert code == 2 and "resample_m needs" in err and len(err.strip().splitlines()) == 1
 
 
 def test_video_frames_carry_the_containers_timestamps(frames: list[Frame], tmp_path: Path) -> None:

@@ -115,8 +115,8 @@ def test_hierarchical_matches_a_retimed_or_reversed_query_and_logs_its_direction
 
 
 def test_a_paired_source_retimes_its_query_and_the_truth_follows(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from tests.test_paired_sources import _folders, _truth_rows
     from slamfront_plugins.sources.paired_datasets import PairedFolders
+    from tests.test_paired_sources import _folders, _truth_rows
 
     reversed_ = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="reversed"))
     _, queries, _ = reversed_.plan
@@ -137,6 +137,25 @@ def test_the_synthetic_world_drives_its_query_backwards_or_resampled_by_odometry
     assert len(SyntheticWorld(stops).pass_positions(1)) > 300  # stops add frames
     smart = SyntheticWorld(stops.model_copy(update={"resample_m": 1.0}))
     assert np.array_equal(smart.pass_positions(1), np.arange(300.0))  # one frame per metre: the stops are gone
+
+
+def test_equal_distance_keeps_one_frame_per_spacing_travelled_and_streams_the_same() -> None:
+    from slamfront.core.retiming import DistanceSampler, equal_distance, travelled_m
+
+    along = np.array([0.0, 0.4, 1.0, 1.0, 1.0, 1.6, 3.5, 3.4, 4.1])  # a stop, a jump, a step back
+    assert travelled_m(along).tolist() == pytest.approx([0, 0.4, 1.0, 1.0, 1.0, 1.6, 3.5, 3.6, 4.3])
+    assert equal_distance(along, 1.0).tolist() == [0, 2, 6, 8]
+    walk = np.cumsum(np.random.default_rng(4).normal(size=(400, 3)) * [1, 1, 0.1], axis=0)
+    walk[100:140] = walk[99]  # stopped
+    for spacing in (0.3, 1.0, 2.5):
+        sampler = DistanceSampler(spacing)
+        streamed = [i for i, point in enumerate(walk) if sampler.keep(point)]
+        kept = equal_distance(walk, spacing)
+        assert streamed == kept.tolist() and kept[0] == 0
+        assert np.sum((kept >= 99) & (kept < 140)) <= 1  # a stop keeps at most one frame
+        marks = np.floor(travelled_m(walk) / spacing + 1e-9)
+        assert np.all(marks[kept[1:]] > marks[kept[1:] - 1])  # each kept frame is the first past a new mark
+        assert len(kept) == len(np.unique(marks))  # and every mark reached has one
 
 
 # --- stops seen through noise, and candidates kept apart ---------------------------------------------

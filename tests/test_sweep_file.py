@@ -127,7 +127,7 @@ def test_bad_sweep_files(cli, tmp_path: Path) -> None:
 def test_invalid_param_names_the_run_and_field(cli, tmp_path: Path) -> None:
     path = write_sweep(tmp_path, {"grid": {"loop_detector.params.accept": [0.1, 2.0]}})
     line = _one_line_error(*cli("sweep", path, "--dry-run")[::2])
-    assert "loop_detector.params.accept: Value error, accept must be auto or a confidence in [0, 1] (got 2.0)" in line
+    assert "loop_detector.params.accept: accept must be auto or a confidence in [0, 1] (got 2.0)" in line
 
 
 @pytest.mark.parametrize("path", sorted(sweeps_dir().glob("*.yaml")), ids=lambda p: p.stem)

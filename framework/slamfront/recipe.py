@@ -238,7 +238,10 @@ def _format_validation(exc: ValidationError, prefix: str, model: type[BaseModel]
             return f"{loc}: unknown {what}; {did_you_mean(str(key), known, 'keys')}{more}"
     got = err.get("input")
     shown = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {shorten(repr(got), 80)})"
-    return f"{loc}: {err['msg']}{shown}{more}"
+    message = err["msg"]
+    if err["type"] == "value_error" and "error" in err.get("ctx", {}):
+        message = str(err["ctx"]["error"])  # a validator's own words, without pydantic's "Value error, "
+    return f"{loc}: {message}{shown}{more}"
 
 
 def parse_recipe(raw: Mapping[str, Any], origin: str) -> Recipe:

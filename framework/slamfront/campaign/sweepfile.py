@@ -156,7 +156,7 @@ def read_sweep(path: Path) -> Sweep:
     try:
         sweep = Sweep.model_validate(raw)
     except ValidationError as exc:
-        raise RecipeError(f"{path}: {_format_validation(exc, '', Sweep).replace('Value error, ', '')}") from exc
+        raise RecipeError(f"{path}: {_format_validation(exc, '', Sweep)}") from exc
     count, field = sweep.run_count()
     problem = over_limit("sweep_runs", count, "the number of runs (recipes x variants x cases x grid x repetitions)")
     if problem:  # checked before a single run is expanded

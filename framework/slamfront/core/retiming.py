@@ -64,3 +64,54 @@ def retimed_frames(n: int, timing: Timing, seed: int = 0) -> np.ndarray:
     """(m,) int64 recorded frames shown by a re-timed pass: each position's nearest recorded
     frame at or before it (a stop repeats a frame; a fast pass skips frames)."""
     return np.floor(retimed_positions(n, timing, seed) + 1e-9).astype(np.int64)
+
+
+# -- SMART: matching at equal distance travelled --------------------------------------------
+
+
+def travelled_m(positions: np.ndarray) -> np.ndarray:
+    """(n,) distance travelled up to each frame along ``positions``: (n,) route positions in
+    metres (either direction) or (n, d) points, e.g. the camera's centres from its poses."""
+    points = np.asarray(positions, dtype=np.float64)
+    steps = np.abs(np.diff(points)) if points.ndim == 1 else np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def equal_distance(positions: np.ndarray, spacing_m: float) -> np.ndarray:
+    """(k,) indices of the frames kept when a pass is resampled to one frame per ``spacing_m``
+    metres travelled (SMART, Pepperell et al. 2014): the first frame, then the first frame
+    at or past each further multiple of ``spacing_m`` of :func:`travelled_m`. A stop keeps
+    one frame; a stretch faster than one frame per ``spacing_m`` keeps every frame."""
+    if spacing_m <= 0:
+        raise CoreError(f"spacing_m must be positive, got {spacing_m}")
+    if len(positions) == 0:
+        return np.zeros(0, dtype=np.int64)
+    marks = np.floor(travelled_m(positions) / spacing_m + 1e-9)
+    return np.flatnonzero(np.concatenate([[True], marks[1:] > marks[:-1]]))
+
+
+class DistanceSampler:
+    """:func:`equal_distance` one frame at a time, for a source that streams (a bag): it
+    never holds more than the last position."""
+
+    def __init__(self, spacing_m: float) -> None:
+        if spacing_m <= 0:
+            raise CoreError(f"spacing_m must be positive, got {spacing_m}")
+        self.spacing_m = spacing_m
+        self._last: np.ndarray | None = None
+        self._travelled = 0.0
+        self._mark = 0.0
+
+    def keep(self, position: np.ndarray) -> bool:
+        """Whether the frame at ``position`` (route metres or a point) is kept."""
+        point = np.atleast_1d(np.asarray(position, dtype=np.float64))
+        if self._last is None:
+            self._last = point
+            return True
+        self._travelled += float(np.linalg.norm(point - self._last))
+        self._last = point
+        mark = float(np.floor(self._travelled / self.spacing_m + 1e-9))
+        if mark > self._mark:
+            self._mark = mark
+            return True
+        return False

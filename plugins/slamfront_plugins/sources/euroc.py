@@ -23,7 +23,7 @@ from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from slamfront import Camera, DataError, Frame, Plugin, PluginConfig, Source
 from slamfront.core.geometry import pose_from_quaternion
@@ -31,13 +31,15 @@ from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath, path_inside
 from slamfront.imageio import read_image
 from slamfront.undistort import Undistortion
-from slamfront_plugins.sources.recording import RecordingConfig, revisit_truth, selected
+from slamfront_plugins.sources.recording import OdometryResampling, RecordingConfig, revisit_truth, selected
 
 GROUND_TRUTH = "state_groundtruth_estimate0"
 
 
 @dataclass(frozen=True)
 class _Entry:
+    number: int
+    """The image's row in data.csv, 0-based."""
     stamp_ns: int
     image: Path
     pose: np.ndarray | None
@@ -53,13 +55,19 @@ class Euroc(Source):
 
     name = "euroc"
 
-    class Config(RecordingConfig):
+    class Config(RecordingConfig, OdometryResampling):
         root: DataPath = Field(description="sequence folder holding mav0/ (relative: under the data root)")
         camera: Literal["cam0", "cam1"] = Field("cam0", description="which camera of the stereo pair")
         ground_truth: bool = Field(True, description="read state_groundtruth_estimate0 (frames outside it are dropped)")
         sync_tolerance_s: float = Field(0.01, ge=0, description="largest gap between a frame and its ground-truth row")
         undistort: bool = Field(True, description="undistort the images by sensor.yaml's distortion")
         revisit_radius_m: float = Field(1.0, gt=0, description="stream loop truth: a revisit comes this close")
+
+        @model_validator(mode="after")
+        def _resampling_needs_poses(self) -> Euroc.Config:
+            if self.resample_m > 0 and not self.ground_truth:
+                raise ValueError("resample_m needs the ground truth's poses (ground_truth: true)")
+            return self
 
     config: Config
 
@@ -152,7 +160,11 @@ class Euroc(Source):
                 raise DataError(f"{truth_csv}: no ground-truth row within {c.sync_tolerance_s} s of a frame")
         else:
             keep = list(range(len(stamps)))
-        return selected([_Entry(int(stamps[i]), images[i], poses[i]) for i in keep], c)
+        entries = [_Entry(i, int(stamps[i]), images[i], poses[i]) for i in keep]
+        if c.resample_m > 0 and not truth_csv.exists():
+            raise DataError(f"{truth_csv}: resample_m needs the ground truth's poses, and there is no such file")
+        centres = np.array([e.pose[:3, 3] for e in entries]) if c.resample_m > 0 else None
+        return selected(entries, c, centres)
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         """Read the layout (lists, calibration, ground truth) before the first frame."""
@@ -173,7 +185,7 @@ class Euroc(Source):
             yield Frame(
                 index=index, timestamp=entry.stamp_ns / 1e9,
                 image=undistortion.image(image) if undistortion is not None else image,
-                sequence_index=self.config.start + index * self.config.step, name=entry.image.name,
+                sequence_index=entry.number, name=entry.image.name,
                 camera=camera, pose=entry.pose,
             )
 

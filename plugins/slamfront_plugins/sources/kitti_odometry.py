@@ -27,7 +27,7 @@ from slamfront.core.loops import LoopGroundTruth
 from slamfront.data import DataPath
 from slamfront.formats.poses import numbered_fields, read_kitti
 from slamfront.imageio import list_images, read_image
-from slamfront_plugins.sources.recording import RecordingConfig, revisit_truth, selected
+from slamfront_plugins.sources.recording import OdometryResampling, RecordingConfig, revisit_truth, selected
 
 CameraFolder = Literal["image_0", "image_1", "image_2", "image_3"]
 
@@ -41,7 +41,7 @@ class KittiOdometry(Source):
 
     name = "kitti_odometry"
 
-    class Config(RecordingConfig):
+    class Config(RecordingConfig, OdometryResampling):
         root: DataPath = Field(description="dataset folder holding sequences/ and poses/ (relative: under the data root)")
         sequence: str = Field("00", description="sequence number, two digits (00-21)")
         camera: CameraFolder = Field("image_0", description="image_0/1: grey left/right; image_2/3: colour left/right")
@@ -107,7 +107,11 @@ class KittiOdometry(Source):
 
     @cached_property
     def _chosen(self) -> list[int]:
-        return selected(range(len(self._all[0])), self.config)
+        poses = self._all[2]
+        if self.config.resample_m > 0 and poses is None:
+            raise DataError(f"{Path(self.config.root) / 'poses' / f'{self.config.sequence}.txt'}: resample_m needs the "
+                            "sequence's poses, and there is no such file")
+        return selected(range(len(self._all[0])), self.config, None if poses is None else poses[:, :3, 3])
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         """Read the layout (images, times, calibration, poses) before the first frame."""

@@ -12,6 +12,7 @@ from pydantic import Field, model_validator
 
 from slamfront import Camera, PluginConfig
 from slamfront.core.loops import LoopGroundTruth, revisits_from_positions
+from slamfront.core.retiming import equal_distance
 from slamfront_plugins.sources.rgbd import KNOWN_CAMERAS, Intrinsics, KnownCamera
 
 T = TypeVar("T")
@@ -44,9 +45,26 @@ class TimedRecordingConfig(RecordingConfig):
         return self
 
 
-def selected(items: Sequence[T], config: RecordingConfig) -> list[T]:
-    """``items[start::step]``, at most ``limit`` of them."""
+class OdometryResampling(PluginConfig):
+    """A recording whose frames carry poses can be resampled by the distance travelled."""
+
+    resample_m: float = Field(
+        0.0, ge=0, description="SMART (Pepperell et al. 2014): keep one frame per this many metres travelled by the "
+        "frames' poses, so passes driven at different paces are matched at equal distance (after start and step, "
+        "before limit); 0: every frame. Needs the poses (ground truth or odometry)"
+    )
+
+
+def selected(items: Sequence[T], config: RecordingConfig, positions: np.ndarray | None = None) -> list[T]:
+    """``items[start::step]``, resampled by distance when the config asks (``positions``:
+    the camera centre of each item, (len(items), 3)), at most ``limit`` of them."""
     chosen = list(items[config.start :: config.step])
+    spacing = getattr(config, "resample_m", 0.0)
+    if spacing > 0:
+        if positions is None:
+            raise ValueError("resample_m needs the frames' poses")
+        kept = equal_distance(np.asarray(positions)[config.start :: config.step], spacing)
+        chosen = [chosen[int(i)] for i in kept]
     return chosen if config.limit is None else chosen[: config.limit]
 
 

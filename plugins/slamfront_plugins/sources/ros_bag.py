@@ -25,12 +25,19 @@ from pydantic import Field, model_validator
 from slamfront import Camera, DataError, Frame, PluginConfig, Source
 from slamfront.core.geometry import pose_from_quaternion
 from slamfront.core.loops import LoopGroundTruth
+from slamfront.core.retiming import DistanceSampler
 from slamfront.core.sync import Paired, StreamPairing
 from slamfront.data import DataPath
 from slamfront.formats import ros
 from slamfront.suggest import did_you_mean
 from slamfront.undistort import Undistortion
-from slamfront_plugins.sources.recording import TimedRecordingConfig, given_camera, n_selected, revisit_truth
+from slamfront_plugins.sources.recording import (
+    OdometryResampling,
+    TimedRecordingConfig,
+    given_camera,
+    n_selected,
+    revisit_truth,
+)
 from slamfront_plugins.sources.rgbd import Intrinsics, KnownCamera
 
 logger = logging.getLogger(__name__)
@@ -64,7 +71,7 @@ class RosBag(Source):
 
     name = "ros_bag"
 
-    class Config(TimedRecordingConfig):
+    class Config(TimedRecordingConfig, OdometryResampling):
         path: DataPath = Field(description="the bag: a ROS 1 .bag, a rosbag2 folder, or a .mcap/.db3 file")
         image_topic: str = Field(description="sensor_msgs/Image or CompressedImage topic: one frame per message")
         depth_topic: str | None = Field(None, description="depth registered to the image (Image 16UC1/32FC1 or "
@@ -95,6 +102,8 @@ class RosBag(Source):
                 raise ValueError("give either pose_topic or tf_parent_frame/tf_child_frame, not both")
             if bool(self.tf_parent_frame) != bool(self.tf_child_frame):
                 raise ValueError("ground truth from /tf needs both tf_parent_frame and tf_child_frame")
+            if self.resample_m > 0 and self.pose_topic is None and not self.tf_parent_frame:
+                raise ValueError("resample_m needs poses: give pose_topic (a pose or odometry topic) or the /tf frames")
             return self
 
     config: Config
@@ -188,6 +197,7 @@ class RosBag(Source):
             if c.camera_in_pose_frame is not None else None
         )
         counts = self._counts if decode else _Counts()
+        sampler = DistanceSampler(c.resample_m) if c.resample_m > 0 else None
         with self._open() as bag:
             topics = self._connections(bag)
             lens = _Lens(c.camera, c.undistort)
@@ -245,7 +255,7 @@ class RosBag(Source):
                         decided = pairing.add_partner("pose", newest, received, None)
                 for paired in decided:
                     frame = self._frame(paired, bag, topics, lens, tree, extrinsic, tolerance, decode, counts,
-                                        last_stamp)
+                                        last_stamp, sampler)
                     if frame is not None:
                         last_stamp = paired.stamp
                         yield frame
@@ -254,7 +264,8 @@ class RosBag(Source):
                 if tree is not None and decided:
                     tree.forget_before(decided[-1].stamp - tolerance)
             for paired in pairing.finish():
-                frame = self._frame(paired, bag, topics, lens, tree, extrinsic, tolerance, decode, counts, last_stamp)
+                frame = self._frame(paired, bag, topics, lens, tree, extrinsic, tolerance, decode, counts, last_stamp,
+                                    sampler)
                 if frame is not None:
                     last_stamp = paired.stamp
                     yield frame
@@ -266,6 +277,7 @@ class RosBag(Source):
     def _frame(
         self, paired: Paired, bag: _Bag, topics: _Topics, lens: _Lens, tree: ros.TransformTree | None,
         extrinsic: np.ndarray | None, tolerance: int, decode: bool, counts: _Counts, last_stamp: int | None,
+        sampler: DistanceSampler | None,
     ) -> Frame | None:
         """The frame of a decided image, or None when it is dropped (and counted)."""
         c = self.config
@@ -289,6 +301,9 @@ class RosBag(Source):
             return None
         if pose is not None and extrinsic is not None:
             pose = pose @ extrinsic
+        if sampler is not None and pose is not None and not sampler.keep(pose[:3, 3]):
+            counts.resampled_out += 1
+            return None
         index = counts.frames
         counts.frames += 1
         if pose is not None:
@@ -338,13 +353,15 @@ class _Counts:
     dropped_no_depth: int = 0
     dropped_no_pose: int = 0
     dropped_out_of_order: int = 0
+    resampled_out: int = 0
+    """Left out by ``resample_m`` (closer than it to the last frame kept): chosen, not lost."""
 
     def as_dict(self) -> dict[str, int]:
         dropped = self.dropped_no_depth + self.dropped_no_pose + self.dropped_out_of_order
         return {
             "n_images_read": self.images_read, "n_frames_dropped": dropped,
             "n_frames_dropped_no_depth": self.dropped_no_depth, "n_frames_dropped_no_pose": self.dropped_no_pose,
-            "n_frames_dropped_out_of_order": self.dropped_out_of_order,
+            "n_frames_dropped_out_of_order": self.dropped_out_of_order, "n_frames_resampled_out": self.resampled_out,
         }
 
     def explain(self, config: RosBag.Config) -> str:

@@ -12,22 +12,12 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from slamfront import Camera, Frame, PluginConfig, Source
 from slamfront.core.loops import LoopGroundTruth
-from slamfront.core.retiming import Timing, retimed_positions
+from slamfront.core.retiming import Timing, equal_distance, retimed_positions
 from slamfront.frame import Traversal
 from slamfront.limits import check_limit
 from slamfront_plugins.sources.synthetic_world import Illumination, Lighting, StreetWorld, occluders_at
 
 logger = logging.getLogger(__name__)
-
-
-def equal_distance(along_m: np.ndarray, spacing_m: float) -> np.ndarray:
-    """(k,) indices of the frames kept when a pass is resampled to one frame per ``spacing_m``
-    metres travelled (SMART, Pepperell et al. 2014): the first frame at or past each
-    multiple of ``spacing_m`` of the distance travelled along ``along_m`` (route positions
-    in metres, any direction). A stop keeps one frame; a fast stretch keeps every frame."""
-    travelled = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(along_m)))])
-    marks = np.floor(travelled / spacing_m + 1e-9)
-    return np.flatnonzero(np.concatenate([[True], marks[1:] > marks[:-1]]))
 
 
 class SyntheticWorld(Source):
