@@ -60,7 +60,8 @@ def recover_log(source: Path, target: Path, compression: str = "zstd", chunk_siz
     """
     source, target = Path(source), Path(target)
     if not source.is_file():
-        raise LogError(f"{source}: no such log file")
+        what = "no such log file" if not source.exists() else "is not a regular file; a log is read only from a regular file"
+        raise LogError(f"{source}: {what}")
     try:
         refuse_overwrite(target, [source], "recover writes a new file; choose another -o path than the damaged log")
     except SlamfrontError as exc:
