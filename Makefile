@@ -42,6 +42,7 @@ testdeps:
 	@sh scripts/sysdeps.sh test
 
 bench: setup
+	@sh scripts/sysdeps.sh bench
 	for script in benchmarks/bench_*.py; do $(BIN)/python $$script || exit 1; done
 
 # Refresh the pinned versions from the current venv (after changing pyproject.toml).

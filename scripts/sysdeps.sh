@@ -4,6 +4,8 @@
 #                                support) even when no camera is used
 #   sh scripts/sysdeps.sh test   also what the tests need: Debian's chromium, which opens
 #                                report.html headless (tests/test_report_html.py)
+#   sh scripts/sysdeps.sh bench  also what the benchmarks need: qemu-user, whose emulated
+#                                older CPUs bench_machine_spread.py renders frames on
 # As root with apt-get the missing packages are installed; otherwise the command to
 # install them is printed (and, for what running needs, make stops).
 set -e
@@ -15,6 +17,9 @@ optional=""
 if [ "$1" = "test" ] && ! command -v chromium >/dev/null 2>&1; then
     optional="$optional chromium"
 fi
+if [ "$1" = "bench" ] && ! command -v qemu-x86_64 >/dev/null 2>&1; then
+    optional="$optional qemu-user"
+fi
 [ -z "$missing$optional" ] && exit 0
 if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "installing system packages:$missing$optional"
@@ -24,7 +29,11 @@ if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     exit 0
 fi
 if [ -n "$optional" ]; then
-    echo "the tests need these system packages:$optional (the report test fails without them)" >&2
+    if [ "$1" = "test" ]; then
+        echo "the tests need these system packages:$optional (the report test fails without them)" >&2
+    else
+        echo "the benchmarks need these system packages:$optional (without them the emulated-CPU rows are not run)" >&2
+    fi
     echo "install them, e.g.: sudo apt-get install$optional" >&2
 fi
 if [ -n "$missing" ]; then
