@@ -148,6 +148,61 @@ def test_bow_bayes_calibrates_paired_traversals_on_the_reference() -> None:
     assert again[0].n_wrong == first[0].n_wrong
 
 
+def _bow_paired(reference: np.ndarray, queries: np.ndarray, seed: int = 0) -> list[Message]:
+    """bow_bayes with accept: auto over reference places then query places (ids into ``landmarks``):
+    each place is seen as 30 of its 40 landmarks, 8 of them its neighbour's (a route: adjacent
+    places look alike)."""
+    rng = np.random.default_rng(seed)
+    shared = rng.normal(size=(5000, 16)).astype(np.float32)
+
+    def observe(place: int) -> np.ndarray:
+        own = shared[place * 32 + np.arange(40)]  # a window sliding 32 landmarks a place: neighbours share 8
+        seen = own[rng.choice(40, 30, replace=False)]
+        return (seen + rng.normal(scale=0.05, size=seen.shape)).astype(np.float32)
+
+    detector = BowBayes(BowBayes.Config(nd_low=0.5, nd_high=2.0, stm_size=5, time_budget_s=0.0))
+    out: list[Message] = []
+    frames = [(int(p), "reference") for p in reference] + [(int(p), "query") for p in queries]
+    for index, (place, traversal) in enumerate(frames):
+        features = Features(frame=index, descriptors=observe(place), metric="l2")
+        out += detector.process(StageInputs(frame=_frame(index, traversal), outputs={"descriptor": [features]}))
+    return out + list(detector.finish())
+
+
+def test_bow_bayes_accepts_revisits_of_a_route_and_no_coincidence() -> None:
+    """Its threshold is set on the supported confidence, calibrated over as many places as a query
+    searches: a re-traversal is accepted (all right); queries of another route are not."""
+    out = _bow_paired(np.arange(60), np.arange(60))
+    answers = [m for m in out if isinstance(m, LoopResult)]
+    accepted = [a for a in answers if a.accepted]
+    # right: a frame merged into the matched place is within 3 of the query's place (place scoring)
+    assert len(accepted) >= 20 and all(np.min(np.abs(a.match_frames - (a.frame - 60))) <= 3 for a in accepted)
+    # another route: the same generator's landmarks far from the reference's (no place in common)
+    elsewhere = [m for m in _bow_paired(np.arange(60), np.arange(60) + 65) if isinstance(m, LoopResult)]
+    assert elsewhere and not any(a.accepted for a in elsewhere)
+
+
+def test_a_lone_similar_place_is_not_supported_a_revisit_along_the_route_is() -> None:
+    """The support of an answer (bow_bayes's acceptance): a place that alone shares words with
+    frame after frame drives 1 - p(no loop) to its ceiling, but not the filter that never holds it."""
+    from slamfront.core.bayes_filter import BayesFilter
+    from slamfront_plugins.loop_detectors.bow_bayes import _Support
+
+    hypotheses = np.arange(200)
+    lone, lone_support = BayesFilter(), _Support(BayesFilter().parameters)
+    route, route_support = BayesFilter(), _Support(BayesFilter().parameters)
+    for k in range(20):
+        spike = np.zeros(200)
+        spike[50] = 0.3  # one coincidental word, every frame
+        step = lone.update(hypotheses, spike)
+        supported_lone = lone_support.update(step, spike)
+        along = np.exp(-0.5 * ((hypotheses - (100 + k)) / 1.5) ** 2) * 0.3  # the revisit and its neighbours
+        step_route = route.update(hypotheses, along)
+        supported_route = route_support.update(step_route, along)
+    assert 1 - step.no_loop > 0.99 and supported_lone < 0.5
+    assert supported_route > 0.99
+
+
 # --- a stream --------------------------------------------------------------------------------
 
 

@@ -17,7 +17,7 @@ from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
-from slamfront.core.operating_point import self_split
+from slamfront.core.operating_point import exclusion_window
 from slamfront.core.vocabulary import (
     BY_ND_HIGH,
     BY_RATIO,
@@ -31,6 +31,9 @@ from slamfront.local_features import DESCRIPTORS, DescriptorName
 from slamfront.messages import Features, LoopResult, Message
 from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
+
+CALIBRATION_FRAMES = 1000
+"""accept: auto with a reference: at most this many of its last frames are searched against the rest of it."""
 
 
 @dataclass
@@ -76,6 +79,43 @@ class _Vocabularies:
 
     main: OnlineVocabulary
     other: OnlineVocabulary | None
+
+
+class _Support:
+    """An answer's *supported* confidence: ``1 - p(no loop)`` of the filter, but at most what a
+    second filter (same parameters) that never holds the answered place keeps.
+
+    The filter's confidence saturates: its likelihood of a place that alone shares words with
+    the frame is about the number of places searched (Wang et al. 2017, eqs. 8-9: the mean
+    similarity is that place's over M), so one coincidental word, seen again in the next
+    frames, drives ``1 - p(no loop)`` to the same ceiling as a true revisit (0.998 with 400
+    places). A true revisit is also supported by its neighbours along the route (adjacent
+    places look alike); a coincidence rests on one place. The shadow filter sees the same
+    similarities without the answered place (each frame's), so what it believes comes from the
+    rest of the map: a lone coincidence leaves it near its prior, a revisit's neighbours keep it
+    high. An answer the frame itself gives no evidence for (its place's likelihood is 1: the
+    filter's prior carried from earlier frames) is not supported at all. ``accept: auto`` sets
+    the threshold on this value; the reported confidence (and the precision-recall curve), and a
+    given ``accept`` (T_loop's), stay on Wang et al. 2017's ``1 - p(no loop)``.
+    """
+
+    def __init__(self, parameters: BayesParameters) -> None:
+        self._shadow = BayesFilter(parameters)
+
+    def update(self, step: BayesStep, similarities: np.ndarray) -> float:
+        """The supported confidence of ``step``'s answer (0 when the frame gives its place no evidence)."""
+        if step.best < 0:
+            return 0.0
+        keep = step.hypotheses != step.best
+        confidence = 1.0 - step.no_loop
+        if keep.any():
+            shadow = self._shadow.update(step.hypotheses[keep], np.asarray(similarities)[keep])
+            confidence = min(confidence, 1.0 - shadow.no_loop)
+        else:
+            confidence = 0.0
+        if step.likelihood.loop[int(np.argmax(step.posterior))] <= 1.0:
+            confidence = 0.0  # the frame says nothing for the place (eq. 8's likelihood 1): the prior, not a loop
+        return float(np.clip(confidence, 0.0, 1.0))
 
 
 class BowBayes(LoopDetector):
@@ -201,6 +241,7 @@ class BowBayes(LoopDetector):
             BayesParameters(sigma=c.transition_sigma, loop_threshold=c.loop_threshold,
                             ignore_zero_similarities=c.ignore_zero_similarities)
         )
+        self._support = _Support(self._filter.parameters)
         self._index = InvertedIndex()
         self._vocabularies: _Vocabularies | None = None
         self._places: dict[int, _Place] = {}
@@ -209,6 +250,8 @@ class BowBayes(LoopDetector):
         self._last_answer: dict[str, LoopResult] = {}
         self._queries_started = False
         self._acceptance = Acceptance(c, self.name)
+        self._reference_bags: list[tuple[int, Counter[int]]] = []
+        """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
         # predicting the coming frames' time (see _transfer)
@@ -357,6 +400,9 @@ class BowBayes(LoopDetector):
                 self._counts["merged"] += 1
         if not similar:
             self._previous_bag[frame.traversal] = bag
+        if frame.traversal == "reference" and self._acceptance.auto and not (
+                similar and self.config.merged_frames == "repeat"):
+            self._reference_bags.append((frame.index, bag))  # searched as a query frame would be
 
         outputs = []
         step: BayesStep | None = None
@@ -367,8 +413,8 @@ class BowBayes(LoopDetector):
             if similar and self.config.merged_frames == "repeat":
                 result = self._repeat_answer(frame.index, frame.traversal, place)
             else:
-                step = self._search(bag)
-                result = self._answer(frame.index, step, frame.traversal == "stream")
+                step, supported = self._search(bag)
+                result = self._answer(frame.index, step, supported, frame.traversal == "stream")
                 if step.best >= 0:
                     if result.accepted and frame.traversal == "stream" and place >= 0:
                         self._memory.close_loop(place, step.best)
@@ -390,45 +436,56 @@ class BowBayes(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """accept: auto, paired traversals: the Bayes filter (a fresh one, same parameters) runs
-        over the reference's last places (its last third, at most 600 frames) against the
-        reference places made ``accept_exclusion_frames`` (at most a tenth of it) or more before them: every answer is wrong."""
-        reference = sorted(self._places)
-        if not reference:
+        over the reference's frames (the last ``CALIBRATION_FRAMES`` of them), every frame searched
+        as a query frame is (merged frames too: a run of similar frames is what lets the filter's
+        evidence pile up on one place), against every reference place in working memory but those
+        within ``accept_exclusion_frames`` (at most a tenth of the reference) of the frame: a
+        traversal does not revisit itself, so every answer is wrong. The search keeps as many
+        hypotheses as a query's does: the filter's likelihood of a lone similar place grows with
+        their number (eqs. 8-9), so a calibration on fewer of them sets the threshold too low."""
+        bags, self._reference_bags = self._reference_bags, []
+        if not bags or not self._places:
             self._acceptance.calibrate([], "reference")
             return
-        first_frame = self._places[reference[0]].frames[0]
-        n = self._places[reference[-1]].frames[-1] - first_frame + 1
-        start, horizon = (first_frame + p for p in self_split(n, self.config.accept_exclusion_frames, 600))
+        n = bags[-1][0] - bags[0][0] + 1
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
         working = self._memory.working()
-        hypotheses = np.asarray([p for p in working.tolist() if self._places[p].frames[-1] < horizon], dtype=np.int64)
-        bayes = BayesFilter(self._filter.parameters)
+        first = np.asarray([self._places[p].frames[0] for p in working.tolist()])
+        last = np.asarray([max(self._places[p].frames) for p in working.tolist()])
+        bayes, support = BayesFilter(self._filter.parameters), _Support(self._filter.parameters)
         wrong = []
-        for place in reference:
-            if self._places[place].frames[0] < start or not len(hypotheses):
+        for frame, bag in bags[-CALIBRATION_FRAMES:]:
+            hypotheses = working[(last < frame - window) | (first > frame + window)]
+            if not len(hypotheses):
                 continue
-            step = bayes.update(hypotheses, self._index.similarities(self._places[place].bag, hypotheses))
+            similarities = self._index.similarities(bag, hypotheses)
+            step = bayes.update(hypotheses, similarities)
             if step.best >= 0:
-                wrong.append(float(np.clip(1.0 - step.no_loop, 0.0, 1.0)))
+                wrong.append(support.update(step, similarities))
         self._acceptance.calibrate(wrong, "reference")
 
     # --- steps --------------------------------------------------------------------
 
-    def _search(self, bag: Counter[int]) -> BayesStep:
+    def _search(self, bag: Counter[int]) -> tuple[BayesStep, float]:
+        """The Bayes filter's step for this bag, and the answer's supported confidence (:class:`_Support`)."""
         hypotheses = self._memory.working()
         similarities = self._index.similarities(bag, hypotheses)
         if len(hypotheses):
             self._counts["searches"] += 1
-        return self._filter.update(hypotheses, similarities)
+        step = self._filter.update(hypotheses, similarities)
+        return step, self._support.update(step, similarities)
 
-    def _answer(self, frame: int, step: BayesStep, stream: bool) -> LoopResult:
+    def _answer(self, frame: int, step: BayesStep, supported: float, stream: bool) -> LoopResult:
         if step.best < 0:
             return LoopResult(frame=frame, match=-1, confidence=0.0, accepted=False, reason="no place in working memory")
         ranked = step.hypotheses[np.argsort(-step.posterior, kind="stable")[: self.config.candidates]]
         frames = np.array([self._places[int(p)].frame for p in ranked], dtype=np.int64)
         confidence = float(np.clip(1.0 - step.no_loop, 0.0, 1.0))
-        # accepted at the operating point (accept: auto calibrates it, a stream on its first frames)
-        accepted = (self._acceptance.stream_answer(self._counts["queries"], confidence) if stream
-                    else self._acceptance.accepts(confidence))
+        # accepted at the operating point, on the supported confidence (accept: auto calibrates it on
+        # the reference or a stream's first frames)
+        decided = supported if self._acceptance.auto else confidence  # a given accept is T_loop's 1 - p(no loop)
+        accepted = (self._acceptance.stream_answer(self._counts["queries"], decided) if stream
+                    else self._acceptance.accepts(decided))
         return LoopResult(
             frame=frame,
             match=int(frames[0]),
