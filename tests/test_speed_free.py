@@ -182,3 +182,24 @@ def test_candidates_kept_for_the_full_comparison_end_apart() -> None:
     assert {source for _, source in together} <= {0, 1, 2}  # the best two: both the true place
     assert 3 in {source for _, source in apart}  # the far candidate, for the uniqueness to compare with
     assert int(apart[0][0].at(59)) == 59
+
+
+def test_an_answer_whose_line_run_back_meets_the_last_one_is_consistent_when_the_pace_changed() -> None:
+    """``rejoin``: after a long iteration at a new pace the old line continued misses the new
+    answer by more than alpha, but the new line run back meets the last answer where it ended;
+    a line running the other way, or at a speed far from the last one's, is not taken for it."""
+    from slamfront_plugins.loop_detectors.hierarchical_frames import Trajectory
+
+    detector = HierarchicalSequence(HierarchicalSequence.Config())
+    last = Trajectory(0.1, 100, 200, 1.0, 40)  # ended at query position 100, map frame 200
+    detector._track = (last, 100)
+    faster = Trajectory(0.1, 100, 200, 1.5, 40)  # at 150: map 275, where the old line continued says 250
+    assert abs(int(faster.at(150)) - int(last.at(150))) > detector.config.alpha
+    assert detector._consistent(faster, 150)
+    assert not detector._consistent(Trajectory(0.1, 100, 200, 3.0, 40), 150)  # beyond cone_margin of 1.0
+    assert not detector._consistent(Trajectory(0.1, 130, 180, -1.0, 40), 150)  # backwards through (100, 210)
+    assert not detector._consistent(Trajectory(0.1, 100, 220, 1.5, 40), 150)  # misses the last answer
+    strict = HierarchicalSequence(HierarchicalSequence.Config(rejoin=False))
+    strict._track = (last, 100)
+    assert not strict._consistent(faster, 150)
+    assert strict._consistent(Trajectory(0.1, 100, 201, 1.0, 40), 150)
