@@ -33,7 +33,7 @@ Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsist
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field
@@ -43,8 +43,11 @@ from slamfront_plugins.loop_detectors.hierarchical_levels import (
     Dispatch,
     FrameMatch,
     TemporalConsistency,
+    candidate_paths,
     candidate_sequences,
     match_frames,
+    path_costs,
+    place_speeds,
     sequence_costs,
 )
 from slamfront_plugins.loop_detectors.place_sequences import PlaceSequenceConfig, PlaceSequenceDetector
@@ -79,6 +82,8 @@ class FaithfulSequenceDecision(Message):
     """The synthetic continuation won (eq. 3.13)."""
     padded_places: int = 0
     """Places added around F* to cover Q-bar's frames."""
+    speed: float = float("nan")
+    """Place speed of the sequence (map places per query place; negative: the query runs the map backwards)."""
     confidence: float = float("nan")
     """1 - v / max_distance (eq. 3.14)."""
     reason: str = ""
@@ -94,6 +99,8 @@ class _Iteration:
     frames: np.ndarray
     candidates: list[tuple[int, int]]
     costs: np.ndarray
+    speed: float = 1.0
+    """Place speed of the best candidate (map places per query place; negative: backwards)."""
 
 
 class HierarchicalFaithful(PlaceSequenceDetector):
@@ -115,6 +122,15 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         alpha: int = Field(
             5, ge=1, description="temporal consistency: |I(f_rho^{i-1}) - I(f_1^i)| < alpha places (Table 4.1)"
         )
+        speed_search: Literal["cone", "letter"] = Field(
+            "cone", description="cone: level 1's candidate sequences also at place speeds cone_low..cone_high "
+            "(steps of 1/(rho-1) places per query place) and backwards (reverse), and level 3 slides Q along them "
+            "at the matching frame speed (a query need not run at the map's pace or direction); letter: F_k = "
+            "(y_k - rho + 1 .. y_k) and speed 1 only, Rodrigues 2019 as written"
+        )
+        cone_low: float = Field(0.5, gt=0, description="speed_search cone: slowest place speed")
+        cone_high: float = Field(2.0, gt=0, description="speed_search cone: fastest place speed")
+        reverse: bool = Field(True, description="speed_search cone: sequences running the map backwards too")
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
@@ -123,6 +139,8 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._iterations: dict[int, _Iteration] = {}
         self._last_matched: int | None = None  # map-frame position, for the synthetic sequence
         self._distances = 0
+        self._speeds = place_speeds(c.cone_low, c.cone_high, c.rho, c.reverse) if c.speed_search == "cone" else None
+        self._processed_speed = 1.0  # place speed of the last sequence sent to level 3 (a rebuild goes on at it)
 
     # --- levels 1 and 2 -------------------------------------------------------------------
 
@@ -134,17 +152,28 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             self._count("map_too_small")
             return self._step(number, None) + self._no_answer(
                 frames, f"the map has {max(usable, 0)} places, not more than rho={c.rho}")
-        candidates = candidate_sequences(self._search(places[-1], c.rho - 1, usable), c.rho)
+        query_reps = pm.representatives(places)
+        if self._speeds is None:
+            candidates = candidate_sequences(self._search(places[-1], c.rho - 1, usable), c.rho)
+            speeds = np.ones(len(candidates))
+        else:  # any place speed in the cone, either direction: a hit needs no places before it
+            paths = candidate_paths(self._search(places[-1], 0, usable), c.rho, self._speeds, usable)
+            candidates = [(int(path[0]), int(path[-1])) for path, _ in paths]
+            speeds = np.asarray([speed for _, speed in paths])
         if not candidates:
             self._count("no_candidate")
             return self._step(number, None) + self._no_answer(frames, "level 1 found no candidate sequence")
-        query_reps = pm.representatives(places)
-        candidate_reps = np.stack([pm.map_representatives(range(first, last + 1)) for first, last in candidates])
-        costs = sequence_costs(query_reps, candidate_reps, pm.metric)
-        self._distances += len(candidates) * c.rho
+        if self._speeds is None:
+            candidate_reps = np.stack([pm.map_representatives(range(first, last + 1)) for first, last in candidates])
+            costs = sequence_costs(query_reps, candidate_reps, pm.metric)
+            self._distances += len(candidates) * c.rho
+        else:
+            costs, computed = path_costs(query_reps, pm.map_representatives, np.stack([p for p, _ in paths]),
+                                         pm.metric)
+            self._distances += computed
         order = np.argsort(costs, kind="stable")
         ranked = [candidates[k] for k in order]
-        self._iterations[number] = _Iteration(number, places, frames, ranked, costs[order])
+        self._iterations[number] = _Iteration(number, places, frames, ranked, costs[order], float(speeds[order[0]]))
         return self._step(number, ranked[0])
 
     def _step(self, number: int, best: tuple[int, int] | None) -> list[Message]:
@@ -177,10 +206,13 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             return [FaithfulSequenceDecision(**decision, reason=reason), *self._no_answer(iteration.frames, reason)]
         query = pm.vectors(iteration.frames)
         informative = pm.informative(iteration.frames)
+        speed = self._processed_speed if dispatch.branch == "rebuilt" else iteration.speed
+        self._processed_speed = speed
         match = match_frames(
             query, informative, dispatch.sequence, pm.place_offsets(),
             lambda start, stop: pm.vectors(pm.map_frames_at(np.arange(start, stop))), pm.metric,
-            self._last_matched, dispatch.synthetic,
+            self._last_matched, dispatch.synthetic, speed=None if self._speeds is None else speed,
+            query_places=len(iteration.places),
         )
         self._distances += match.n_distances
         first, last = dispatch.sequence
@@ -196,7 +228,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         record = FaithfulSequenceDecision(
             **decision, first=first, last=last, template_offset=match.template_offset,
             template_cost=match.template_cost, synthetic_cost=match.synthetic_cost,
-            used_synthetic=match.used_synthetic, padded_places=match.padded_places, confidence=confidence,
+            used_synthetic=match.used_synthetic, padded_places=match.padded_places, speed=speed, confidence=confidence,
         )
         return [record, *results]
 
@@ -223,8 +255,10 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         offsets = pm.place_offsets()
         columns = []
         for first, last in iteration.candidates[1:]:
-            start, stop = int(offsets[first]), int(offsets[last + 1])
+            start, stop = int(offsets[min(first, last)]), int(offsets[max(first, last) + 1])
             positions = start + np.minimum((np.arange(n) * (stop - start)) // max(n, 1), stop - start - 1)
+            if last < first:  # a sequence running the map backwards
+                positions = positions[::-1]
             columns.append(pm.map_frames_at(positions))
         return [[int(col[k]) for col in columns] for k in range(n)]
 
