@@ -203,3 +203,41 @@ def test_an_answer_whose_line_run_back_meets_the_last_one_is_consistent_when_the
     strict._track = (last, 100)
     assert not strict._consistent(faster, 150)
     assert strict._consistent(Trajectory(0.1, 100, 201, 1.0, 40), 150)
+
+
+def test_faithful_candidate_paths_run_at_place_speeds_either_way() -> None:
+    from slamfront_plugins.loop_detectors.hierarchical_levels import candidate_paths, place_speeds
+
+    speeds = place_speeds(0.5, 2.0, 5, reverse=True)
+    assert speeds[0] == 1.0 and set(np.abs(speeds)) == {0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0}
+    paths = {speed: path.tolist() for path, speed in candidate_paths(np.array([20]), 5, speeds, 40)}
+    assert paths[1.0] == [16, 17, 18, 19, 20]  # eq. 3.4's F_k
+    assert paths[2.0] == [12, 14, 16, 18, 20] and paths[-1.0] == [24, 23, 22, 21, 20]
+    assert all(path[-1] == 20 for path in paths.values())
+    assert 2.0 not in {s for _, s in candidate_paths(np.array([5]), 5, speeds, 40)}  # would start before the map
+
+
+@pytest.mark.parametrize(("timing", "sign"), [("reversed", -1), ("double", 1), ("half", 1)])
+def test_faithful_cone_follows_a_retimed_or_reversed_query_the_letter_loses(timing: str, sign: int) -> None:
+    from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision, HierarchicalFaithful
+
+    reference = route_descriptors(120, 2, seed=3)
+    truth = retimed_frames(len(reference), timing)  # type: ignore[arg-type]
+    query = noisy(reference[truth], 0.1, seed=5)
+    vectors = np.concatenate([reference, query])
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+
+    def right(**detector: object) -> tuple[int, list[FaithfulSequenceDecision]]:
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        outputs = run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**detector)))
+        results = [m for m in outputs if isinstance(m, LoopResult) and m.match >= 0]
+        hits = sum(abs(r.match - truth[r.frame - len(reference)]) <= 2 for r in results)
+        return hits, [m for m in outputs if isinstance(m, FaithfulSequenceDecision)]
+
+    cone, decisions = right()
+    assert cone >= 0.6 * len(query)
+    answered = [d.speed for d in decisions if np.isfinite(d.speed)]
+    assert sum(np.sign(answered) == sign) >= 0.8 * len(answered)
+    if timing != "double":  # 2-frame places: at double pace the letter still steps one place per place
+        letter, _ = right(speed_search="letter")
+        assert letter < 0.5 * cone
