@@ -131,6 +131,14 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         cone_low: float = Field(0.5, gt=0, description="speed_search cone: slowest place speed")
         cone_high: float = Field(2.0, gt=0, description="speed_search cone: fastest place speed")
         reverse: bool = Field(True, description="speed_search cone: sequences running the map backwards too")
+        cone_settle: int = Field(
+            3, ge=0, description="speed_search cone: once this many of the last sequences answered as consistent or "
+            "validated agree on a direction, only place speeds in that direction within cone_margin of their "
+            "median are searched, until cone_after sequences in a row are rebuilt; 0: always the whole cone "
+            "(designed on Nordland 2900-3499)"
+        )
+        cone_margin: float = Field(1.75, gt=1, description="speed_search cone: see cone_settle")
+        cone_after: int = Field(2, ge=1, description="speed_search cone: see cone_settle")
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
@@ -141,6 +149,8 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._distances = 0
         self._speeds = place_speeds(c.cone_low, c.cone_high, c.rho, c.reverse) if c.speed_search == "cone" else None
         self._processed_speed = 1.0  # place speed of the last sequence sent to level 3 (a rebuild goes on at it)
+        self._settled: list[float] = []  # place speeds of the last sequences answered as consistent or validated
+        self._rebuilt = 0  # sequences rebuilt in a row
 
     # --- levels 1 and 2 -------------------------------------------------------------------
 
@@ -157,7 +167,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             candidates = candidate_sequences(self._search(places[-1], c.rho - 1, usable), c.rho)
             speeds = np.ones(len(candidates))
         else:  # any place speed in the cone, either direction: a hit needs no places before it
-            paths = candidate_paths(self._search(places[-1], 0, usable), c.rho, self._speeds, usable)
+            paths = candidate_paths(self._search(places[-1], 0, usable), c.rho, self._cone_speeds(), usable)
             candidates = [(int(path[0]), int(path[-1])) for path, _ in paths]
             speeds = np.asarray([speed for _, speed in paths])
         if not candidates:
@@ -175,6 +185,21 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         ranked = [candidates[k] for k in order]
         self._iterations[number] = _Iteration(number, places, frames, ranked, costs[order], float(speeds[order[0]]))
         return self._step(number, ranked[0])
+
+    def _cone_speeds(self) -> np.ndarray:
+        """The place speeds searched now: the whole cone, or, once ``cone_settle`` of the last
+        answered sequences agree on a direction, that direction's speeds within ``cone_margin``
+        of their median (a wide cone lets wrong sequences fit as well as the right one)."""
+        assert self._speeds is not None
+        c = self.config
+        recent = self._settled[-c.cone_settle:] if c.cone_settle else []
+        if not recent or len(recent) < c.cone_settle or len({np.sign(v) for v in recent}) > 1:
+            return self._speeds
+        median = float(np.median(np.abs(recent)))
+        kept = self._speeds[(np.sign(self._speeds) == np.sign(recent[0]))
+                            & (np.abs(self._speeds) >= median / c.cone_margin)
+                            & (np.abs(self._speeds) <= median * c.cone_margin)]
+        return kept if len(kept) else self._speeds
 
     def _step(self, number: int, best: tuple[int, int] | None) -> list[Message]:
         """Level 2's temporal consistency (Alg. 3) with this iteration's best candidate (None:
@@ -208,6 +233,13 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         informative = pm.informative(iteration.frames)
         speed = self._processed_speed if dispatch.branch == "rebuilt" else iteration.speed
         self._processed_speed = speed
+        if dispatch.branch in ("consistent", "validated_by_next"):
+            self._settled = [*self._settled[-8:], speed]
+            self._rebuilt = 0
+        else:
+            self._rebuilt += 1
+            if self._rebuilt >= self.config.cone_after:
+                self._settled = []
         match = match_frames(
             query, informative, dispatch.sequence, pm.place_offsets(),
             lambda start, stop: pm.vectors(pm.map_frames_at(np.arange(start, stop))), pm.metric,
