@@ -134,8 +134,9 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         cone_settle: int = Field(
             3, ge=0, description="speed_search cone: once this many of the last sequences answered as consistent or "
             "validated agree on a direction, only place speeds in that direction within cone_margin of their "
-            "median are searched, until cone_after sequences in a row are rebuilt; 0: always the whole cone "
-            "(designed on Nordland 2900-3499)"
+            "median are searched, until cone_after sequences in a row are rebuilt; 0: always the whole cone; "
+            "paired traversals only (in a stream most answers come before any revisit) (designed on Nordland "
+            "2900-3499)"
         )
         cone_margin: float = Field(1.75, gt=1, description="speed_search cone: see cone_settle")
         cone_after: int = Field(2, ge=1, description="speed_search cone: see cone_settle")
@@ -167,7 +168,8 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             candidates = candidate_sequences(self._search(places[-1], c.rho - 1, usable), c.rho)
             speeds = np.ones(len(candidates))
         else:  # any place speed in the cone, either direction: a hit needs no places before it
-            paths = candidate_paths(self._search(places[-1], 0, usable), c.rho, self._cone_speeds(), usable)
+            speeds = self._speeds if stream else self._cone_speeds()  # a stream's answers before a revisit say
+            paths = candidate_paths(self._search(places[-1], 0, usable), c.rho, speeds, usable)  # nothing of its pace
             candidates = [(int(path[0]), int(path[-1])) for path, _ in paths]
             speeds = np.asarray([speed for _, speed in paths])
         if not candidates:
