@@ -234,10 +234,10 @@ def test_faithful_cone_follows_a_retimed_or_reversed_query_the_letter_loses(timi
         hits = sum(abs(r.match - truth[r.frame - len(reference)]) <= 2 for r in results)
         return hits, [m for m in outputs if isinstance(m, FaithfulSequenceDecision)]
 
-    cone, decisions = right()
+    cone, decisions = right(speed_search="cone")
     assert cone >= 0.6 * len(query)
     answered = [d.speed for d in decisions if np.isfinite(d.speed)]
     assert sum(np.sign(answered) == sign) >= 0.8 * len(answered)
     if timing != "double":  # 2-frame places: at double pace the letter still steps one place per place
-        letter, _ = right(speed_search="letter")
+        letter, _ = right()  # the default: Rodrigues 2019's letter
         assert letter < 0.5 * cone

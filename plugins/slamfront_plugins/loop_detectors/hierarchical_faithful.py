@@ -122,11 +122,12 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         alpha: int = Field(
             5, ge=1, description="temporal consistency: |I(f_rho^{i-1}) - I(f_1^i)| < alpha places (Table 4.1)"
         )
-        speed_search: Literal["cone", "letter"] = Field(
-            "cone", description="cone: level 1's candidate sequences also at place speeds cone_low..cone_high "
-            "(steps of 1/(rho-1) places per query place) and backwards (reverse), and level 3 slides Q along them "
-            "at the matching frame speed (a query need not run at the map's pace or direction); letter: F_k = "
-            "(y_k - rho + 1 .. y_k) and speed 1 only, Rodrigues 2019 as written"
+        speed_search: Literal["letter", "cone"] = Field(
+            "letter", description="letter: F_k = (y_k - rho + 1 .. y_k) and speed 1 only, Rodrigues 2019 as written; "
+            "cone: level 1's candidate sequences also at place speeds cone_low..cone_high (steps of 1/(rho-1) "
+            "places per query place) and backwards (reverse), and level 3 slides Q along them at the matching "
+            "frame speed (a query need not run at the map's pace or direction; on the whole Nordland route it "
+            "costs the unchanged control 0.613 -> 0.227 R@100%P, so it is not the default)"
         )
         cone_low: float = Field(0.5, gt=0, description="speed_search cone: slowest place speed")
         cone_high: float = Field(2.0, gt=0, description="speed_search cone: fastest place speed")
