@@ -28,6 +28,9 @@ Deviations from the letter of Rodrigues 2019, where it is ambiguous or inconsist
 - featureless query frames (all-zero descriptors) get no answer and are left out of v;
 - at the end of the traversal a sequence still waiting is treated as not validated by
   the next iteration (rebuilt); places left over after the last full Q get no answer.
+
+``speed_search: cone`` (off by default) leaves the letter: candidate sequences at other place
+speeds and backwards, level 3 on sloped lines, no synthetic sequence (docs/loop_closure.md).
 """
 
 from __future__ import annotations

@@ -15,7 +15,8 @@ candidate: no rho - 1 places needed before it). Then (pure logic in
    one more candidate (the *track*); it replaces the faithful detector's rebuilt
    sequence and synthetic continuation, but is re-aligned to the descriptors and must
    beat level 1's candidates at every iteration, so it cannot drift away from the data.
-   Temporal consistency (alpha, in frames) works as in Alg. 3: an answer inconsistent
+   Temporal consistency (alpha, in frames; with ``rejoin`` also when the new line, run back,
+   meets the last answer where it ended: the pace changed) works as in Alg. 3: an answer inconsistent
    with the previous one waits for the next iteration; validated by it, it is answered,
    otherwise it is answered as *isolated* with confidence 0;
 3. level 3: each frame of Q is paired along the best trajectory, re-aligned
