@@ -195,7 +195,7 @@ def main() -> None:
         f"## Synthetic street (world seeds {', '.join(map(str, SEEDS))}, {SYNTHETIC_FRAMES} frames; not designed on)\n\n"
         "The detectors' synthetic recipes (`synthetic_hsl`, `synthetic_seqslam`: day reference, dusk query); a "
         "reversed query keeps facing the route's forward direction.\n\n"
-        f"{table(headers, rows(results, [d for d in [*DETECTORS, 'smart'] if d in SYNTHETIC], worlds))}\n\n"
+        f"{table(headers, rows(results, [d for d in [*DETECTORS, 'smart'] if d in SYNTHETIC], [-s for s in SEEDS]))}\n\n"
         "`synthetic_hsl + SMART`: both traversals resampled to one frame per metre travelled by the poses "
         "(`resample_m: 1`, Pepperell et al. 2014) before matching.\n\n"
         "![R@100%P per query timing](../../docs/img/speed_direction.png)\n\n"
