@@ -115,8 +115,8 @@ def test_hierarchical_matches_a_retimed_or_reversed_query_and_logs_its_direction
 
 
 def test_a_paired_source_retimes_its_query_and_the_truth_follows(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from tests.test_paired_sources import _folders, _truth_rows
     from slamfront_plugins.sources.paired_datasets import PairedFolders
+    from tests.test_paired_sources import _folders, _truth_rows
 
     reversed_ = PairedFolders(PairedFolders.Config(**_folders(tmp_path), query_timing="reversed"))
     _, queries, _ = reversed_.plan
