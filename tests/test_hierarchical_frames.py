@@ -187,8 +187,9 @@ def test_frames_past_a_jump_in_the_route_answered_along_the_old_line_rank_below_
     assert max(wrong, default=0.0) < min(right)  # the line check: the old line is not unique there
     # without it the old line answers them more confident than true matches (lines at the map's
     # pace, the best screened candidates wherever they end; the speed-free cone and candidates
-    # kept apart happen to leave the old line there on their own)
-    right, wrong = answers(line_check=False, speed_search="lines", refine_apart=False)
+    # kept apart, rejoined answers and the next answer's line happen to leave the old line there on their own)
+    right, wrong = answers(line_check=False, speed_search="lines", refine_apart=False, rejoin=False,
+                           realign_next=False)
     assert len(wrong) >= 8 and max(wrong) > min(right)
 
 

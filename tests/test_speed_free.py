@@ -107,7 +107,7 @@ def test_hierarchical_matches_a_retimed_or_reversed_query_and_logs_its_direction
     assert settled.count(direction) >= 0.8 * len(settled)
     # at the map's pace only (the former straight lines) the same query is lost
     if timing != "half":
-        results, _ = _run(reference, query, sequence_frames=20, speed_search="lines")
+        results, _ = _run(reference, query, sequence_frames=20, speed_search="lines", rejoin=False, realign_next=False)
         assert sum(abs(r.match - truth[k]) <= 2 for k, r in results.items() if r.match >= 0) < 0.5 * len(right)
 
 
@@ -201,3 +201,62 @@ def test_candidates_kept_for_the_full_comparison_end_apart() -> None:
     assert {source for _, source in together} <= {0, 1, 2}  # the best two: both the true place
     assert 3 in {source for _, source in apart}  # the far candidate, for the uniqueness to compare with
     assert int(apart[0][0].at(59)) == 59
+
+
+def test_an_answer_whose_line_run_back_meets_the_last_one_is_consistent_when_the_pace_changed() -> None:
+    """``rejoin``: after a long iteration at a new pace the old line continued misses the new
+    answer by more than alpha, but the new line run back meets the last answer where it ended;
+    a line running the other way, or at a speed far from the last one's, is not taken for it."""
+    from slamfront_plugins.loop_detectors.hierarchical_frames import Trajectory
+
+    detector = HierarchicalSequence(HierarchicalSequence.Config())
+    last = Trajectory(0.1, 100, 200, 1.0, 40)  # ended at query position 100, map frame 200
+    detector._track = (last, 100)
+    faster = Trajectory(0.1, 100, 200, 1.5, 40)  # at 150: map 275, where the old line continued says 250
+    assert abs(int(faster.at(150)) - int(last.at(150))) > detector.config.alpha
+    assert detector._consistent(faster, 150)
+    assert not detector._consistent(Trajectory(0.1, 100, 200, 3.0, 40), 150)  # beyond cone_margin of 1.0
+    assert not detector._consistent(Trajectory(0.1, 130, 180, -1.0, 40), 150)  # backwards through (100, 210)
+    assert not detector._consistent(Trajectory(0.1, 100, 220, 1.5, 40), 150)  # misses the last answer
+    strict = HierarchicalSequence(HierarchicalSequence.Config(rejoin=False))
+    strict._track = (last, 100)
+    assert not strict._consistent(faster, 150)
+    assert strict._consistent(Trajectory(0.1, 100, 201, 1.0, 40), 150)
+
+
+def test_faithful_candidate_paths_run_at_place_speeds_either_way() -> None:
+    from slamfront_plugins.loop_detectors.hierarchical_levels import candidate_paths, place_speeds
+
+    speeds = place_speeds(0.5, 2.0, 5, reverse=True)
+    assert speeds[0] == 1.0 and set(np.abs(speeds)) == {0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0}
+    paths = {speed: path.tolist() for path, speed in candidate_paths(np.array([20]), 5, speeds, 40)}
+    assert paths[1.0] == [16, 17, 18, 19, 20]  # eq. 3.4's F_k
+    assert paths[2.0] == [12, 14, 16, 18, 20] and paths[-1.0] == [24, 23, 22, 21, 20]
+    assert all(path[-1] == 20 for path in paths.values())
+    assert 2.0 not in {s for _, s in candidate_paths(np.array([5]), 5, speeds, 40)}  # would start before the map
+
+
+@pytest.mark.parametrize(("timing", "sign"), [("reversed", -1), ("double", 1), ("half", 1)])
+def test_faithful_cone_follows_a_retimed_or_reversed_query_the_letter_loses(timing: str, sign: int) -> None:
+    from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision, HierarchicalFaithful
+
+    reference = route_descriptors(120, 2, seed=3)
+    truth = retimed_frames(len(reference), timing)  # type: ignore[arg-type]
+    query = noisy(reference[truth], 0.1, seed=5)
+    vectors = np.concatenate([reference, query])
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+
+    def right(**detector: object) -> tuple[int, list[FaithfulSequenceDecision]]:
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        outputs = run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**detector)))
+        results = [m for m in outputs if isinstance(m, LoopResult) and m.match >= 0]
+        hits = sum(abs(r.match - truth[r.frame - len(reference)]) <= 2 for r in results)
+        return hits, [m for m in outputs if isinstance(m, FaithfulSequenceDecision)]
+
+    cone, decisions = right(speed_search="cone")
+    assert cone >= 0.6 * len(query)
+    answered = [d.speed for d in decisions if np.isfinite(d.speed)]
+    assert sum(np.sign(answered) == sign) >= 0.8 * len(answered)
+    if timing != "double":  # 2-frame places: at double pace the letter still steps one place per place
+        letter, _ = right()  # the default: Rodrigues 2019's letter
+        assert letter < 0.5 * cone

