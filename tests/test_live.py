@@ -91,7 +91,9 @@ class Client(threading.Thread):
             self.error = exc
 
     def _control(self, ws: Any, message: dict[str, Any]) -> None:
-        self.timeline.append((time.monotonic() - self.started, f"{message.get('op')} {len(message.get('channels', []))}"))
+        said = message.get("message", "") if message.get("op") == "status" else ""
+        self.timeline.append((time.monotonic() - self.started,
+                              f"{message.get('op')} {len(message.get('channels', []))} {said}".strip()))
         if message.get("op") != "advertise":
             return
         subscriptions = []
@@ -128,7 +130,8 @@ def test_a_live_run_reaches_a_websocket_client_with_the_logs_topics_and_schemas(
     assert offered == logged
     assert summary.topic("/camera/image").count == N_FRAMES
     images = client.received.get("/camera/image", [])
-    assert len(images) >= 0.9 * N_FRAMES, (client.timeline, done.stderr[-2000:])
+    said = "; ".join(f"{t:.3f} {what}" for t, what in client.timeline)
+    assert len(images) >= 0.9 * N_FRAMES, f"client saw: {said}\nserver said: {done.stderr[-1500:]}"
     channel = next(c for c in client.channels.values() if c["topic"] == "/camera/image")
     assert channel["encoding"] == "protobuf" and channel["schemaName"] == "foxglove.CompressedImage"
     image_class = _message_class(channel["schemaName"], channel["schema"])
