@@ -44,6 +44,7 @@ from pydantic import Field, model_validator
 
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
+from slamfront.core.operating_point import exclusion_window
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
     Cone,
@@ -79,7 +80,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
 
     name = "hierarchical_sequence"
     branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map",
-                   "stationary")
+                   "stationary", "leave_answer_out")
 
     class Config(PlaceSequenceConfig):
         """Where each default comes from, and what changing it does on data it was not chosen on:
@@ -342,6 +343,9 @@ class HierarchicalSequence(PlaceSequenceDetector):
         best = trajectories[0][0]
         confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if self._kind(stream) == "uniqueness" \
             else float(pm.similarity(best.cost))
+        if self._acceptance.wants_query_null and not stream:
+            self._leave_answer_out(places[-1], anchor, rows, n_map, map_informative, usable, trajectories,
+                                   velocities, cone, len(frames))
         consistent = self._consistent(best, end)
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
@@ -355,6 +359,53 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return self._answers(record, "consistent" if consistent else "inconsistent", [best], record.confidence,
                                  (min(record.window_start, int(positions[0])), end))
         return self._settle(record)
+
+    def _leave_answer_out(
+        self, place: int, anchor: int, rows: np.ndarray, n_map: int, map_informative: np.ndarray, usable: int,
+        compared: list[tuple[Trajectory, int]], velocities: np.ndarray, cone: Cone | None, n_frames: int,
+    ) -> None:
+        """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`):
+        levels 1 and 2 again with the map places within the exclusion window of the answer left
+        out (and no track): whatever it answers then is wrong by construction. Its uniqueness,
+        before the evidence of a run and the line check (which only lower a confidence), is
+        what a wrong answer of this query can reach. Left out: the map frames the answer's line
+        (``compared[0]``) pairs with the window's query frames, and the exclusion window either
+        side of them. The lines the iteration compared that stay clear of them compete too."""
+        c = self.config
+        if not len(rows):
+            return
+        pm = self.place_map
+        offsets = pm.place_offsets()
+        window = exclusion_window(n_map, c.accept_exclusion_frames)
+        answered = compared[0][0].at(rows).astype(np.int64)
+        first = max(0, int(np.searchsorted(offsets, int(answered.min()) - window, side="right")) - 1)
+        last = int(np.searchsorted(offsets, int(answered.max()) + window, side="right")) - 1
+        vector = pm.representatives([place])[0]
+        found: list[tuple[np.ndarray, np.ndarray]] = []
+        for lo, hi in ((0, first - 1), (last + 1, usable - 1)):
+            if lo <= hi:
+                found.append(pm.nearest(vector, c.psi, lo=lo, hi=hi))
+        if not found:
+            return
+        hits = np.concatenate([np.asarray(h, dtype=np.int64) for h, _ in found])
+        near = np.concatenate([np.asarray(d, dtype=np.float64) for _, d in found])
+        hits = hits[np.argsort(near, kind="stable")][: c.psi]
+        trajectories = compare_candidates(
+            self._pairs, [(anchor, int(offsets[h]), int(h)) for h in hits], rows, n_map, map_informative,
+            velocities=velocities, slack=c.anchor_slack, refine=c.refine, screen_frames=c.screen_frames,
+            screen_speeds=velocities, cone=cone, reverse_anchors=[int(offsets[h + 1]) - 1 for h in hits],
+            distinct=c.uniqueness_window if c.refine_apart else 0,
+        )
+        # a line that still crosses the answered stretch is not wrong by construction
+        kept = [t for t, _ in [*trajectories, *compared[1:]]
+                if np.abs(t.at(rows).astype(np.int64) - answered).min() > window]
+        if not kept:
+            return
+        self._count("leave_answer_out")
+        kept.sort(key=lambda t: t.cost)
+        ends = np.asarray([int(t.at(int(rows[-1]))) for t in kept])
+        self._acceptance.query_null(uniqueness(np.asarray([t.cost for t in kept]), ends, 0, c.uniqueness_window),
+                                    n_frames)
 
     def _consistent(self, best: Trajectory, end: int) -> bool:
         """Temporal consistency (Alg. 3, ``alpha`` frames) of the new answer ``best``, whose Q
