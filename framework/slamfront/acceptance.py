@@ -52,7 +52,7 @@ class AcceptanceConfig(PluginConfig):
         "appearance), once there are accept_query_null_frames of them; never above the reference's threshold"
     )
     accept_query_null_frames: int = Field(
-        100, ge=1, description="accept_query_null: query frames with a leave-the-answer-out confidence needed "
+        50, ge=1, description="accept_query_null: query frames with a leave-the-answer-out confidence needed "
         "before it may move the threshold"
     )
 

@@ -234,6 +234,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
         self._waiting: _Answer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
+        self._null_track: tuple[Trajectory, int] | None = None  # the last leave-the-answer-out answer
+        self._null_run: list[float] = []  # and its run's confidences (accept_query_null)
         self._confidence_kind: str | None = None if c.confidence == "auto" else c.confidence
 
     def _seen(self, frame: int) -> None:
@@ -403,9 +405,18 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return
         self._count("leave_answer_out")
         kept.sort(key=lambda t: t.cost)
-        ends = np.asarray([int(t.at(int(rows[-1]))) for t in kept])
-        self._acceptance.query_null(uniqueness(np.asarray([t.cost for t in kept]), ends, 0, c.uniqueness_window),
-                                    n_frames)
+        end = int(rows[-1])
+        ends = np.asarray([int(t.at(end)) for t in kept])
+        confidence = uniqueness(np.asarray([t.cost for t in kept]), ends, 0, c.uniqueness_window)
+        # as an answer's: the mean over its run of consistent leave-out answers, at most its line's uniqueness
+        previous, self._null_track = self._null_track, (kept[0], end)
+        consistent = previous is not None and abs(int(kept[0].at(end)) - int(previous[0].at(end))) <= c.alpha
+        self._null_run = [*self._null_run, confidence] if consistent else [confidence]
+        confidence = float(np.mean(self._null_run[-c.evidence_iterations:]))
+        if c.line_check and confidence > 0:
+            confidence = min(confidence, line_uniqueness(self._pairs, rows, kept[0], c.anchor_slack,
+                                                         c.uniqueness_window, n_map, map_informative))
+        self._acceptance.query_null(confidence, n_frames)
 
     def _consistent(self, best: Trajectory, end: int) -> bool:
         """Temporal consistency (Alg. 3, ``alpha`` frames) of the new answer ``best``, whose Q
