@@ -368,9 +368,9 @@ class HierarchicalSequence(PlaceSequenceDetector):
     ) -> None:
         """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`):
         levels 1 and 2 again with the map places within the exclusion window of the answer left
-        out (and no track): whatever it answers then is wrong by construction. Its uniqueness,
-        before the evidence of a run and the line check (which only lower a confidence), is
-        what a wrong answer of this query can reach. Left out: the map frames the answer's line
+        out (and no track): whatever it answers then is wrong by construction. Its confidence is
+        an answer's: the uniqueness among the lines, the mean over its own run of consistent
+        leave-out answers (``evidence_iterations``), at most its line's ``line_check``. Left out: the map frames the answer's line
         (``compared[0]``) pairs with the window's query frames, and the exclusion window either
         side of them. The lines the iteration compared that stay clear of them compete too."""
         c = self.config
@@ -384,9 +384,11 @@ class HierarchicalSequence(PlaceSequenceDetector):
         last = int(np.searchsorted(offsets, int(answered.max()) + window, side="right")) - 1
         vector = pm.representatives([place])[0]
         found: list[tuple[np.ndarray, np.ndarray]] = []
+        searched, computed = pm.search_distances, self._pairs.computed
         for lo, hi in ((0, first - 1), (last + 1, usable - 1)):
             if lo <= hi:
                 found.append(pm.nearest(vector, c.psi, lo=lo, hi=hi))
+        self._query_null_distances[0] += pm.search_distances - searched
         if not found:
             return
         hits = np.concatenate([np.asarray(h, dtype=np.int64) for h, _ in found])
@@ -402,6 +404,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         kept = [t for t, _ in [*trajectories, *compared[1:]]
                 if np.abs(t.at(rows).astype(np.int64) - answered).min() > window]
         if not kept:
+            self._query_null_distances[1] += self._pairs.computed - computed
             return
         self._count("leave_answer_out")
         kept.sort(key=lambda t: t.cost)
@@ -416,6 +419,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         if c.line_check and confidence > 0:
             confidence = min(confidence, line_uniqueness(self._pairs, rows, kept[0], c.anchor_slack,
                                                          c.uniqueness_window, n_map, map_informative))
+        self._query_null_distances[1] += self._pairs.computed - computed
         self._acceptance.query_null(confidence, n_frames)
 
     def _consistent(self, best: Trajectory, end: int) -> bool:
