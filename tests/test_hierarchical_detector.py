@@ -74,7 +74,7 @@ def test_every_query_frame_is_answered_once_online_and_correctly(mode: str) -> N
     assert stats["n_searches"] == 40 // 5 and stats["n_validated_by_next"] == validated
     assert stats["n_consistent"] == 8 - validated
     assert stats["n_distances"] == (stats["n_distances_search"] + stats["n_distances_sequences"]
-                                    + stats["n_distances_calibration"]) > 0
+                                    + stats["n_distances_calibration"] + stats["n_distances_query_null"]) > 0
 
 
 def test_decisions_record_the_branch_and_the_candidates() -> None:

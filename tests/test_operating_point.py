@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from slamfront.acceptance import AcceptThreshold
-from slamfront.core.operating_point import threshold_at_false_accept_rate
+from slamfront.acceptance import Acceptance, AcceptanceConfig, AcceptThreshold
+from slamfront.core.operating_point import query_null_threshold, threshold_at_false_accept_rate
 from slamfront.frame import Frame
 from slamfront.messages import Features, LoopResult, Message
 from slamfront.plugin import StageInputs
@@ -34,6 +34,29 @@ def test_the_threshold_lets_through_at_most_the_rate_of_wrong_answers() -> None:
     assert threshold_at_false_accept_rate(wrong, 0.0) > wrong.max()
     assert threshold_at_false_accept_rate(np.array([]), 0.01) == 1.0  # nothing seen: accept nothing
     assert threshold_at_false_accept_rate(np.array([0.2, np.nan]), 0.01) == pytest.approx(0.2)
+
+
+def test_the_queries_null_only_lowers_the_threshold_to_its_own_quantile() -> None:
+    rng = np.random.default_rng(1)
+    null = rng.random(500) * 0.2
+    assert query_null_threshold(0.5, null, 0.01) == threshold_at_false_accept_rate(null, 0.01) < 0.2
+    assert query_null_threshold(0.1, null, 0.01) == 0.1  # never above the reference's
+    acceptance = Acceptance(AcceptanceConfig(accept_query_null_frames=50), "d")
+    acceptance.calibrate([0.4, 0.5], "reference")
+    threshold = acceptance.threshold
+    acceptance.query_null(0.05, frames=49)
+    assert acceptance.threshold == threshold  # not enough query frames yet
+    acceptance.query_null(0.1, frames=1)
+    assert acceptance.threshold == pytest.approx(0.1) and acceptance.accepts(0.11) and not acceptance.accepts(0.09)
+    logged = acceptance.messages()
+    assert [m.source for m in logged] == ["reference", "queries"] and logged[1].n_wrong == 50
+    assert acceptance.statistics()["accept_threshold_reference"] == threshold
+    for config in (AcceptanceConfig(accept=0.3), AcceptanceConfig(accept_query_null=False)):  # fixed, or off
+        fixed = Acceptance(config, "d")
+        fixed.calibrate([0.4], "reference") if config.accept == "auto" else None
+        before = fixed.threshold
+        fixed.query_null(0.0, frames=1000)
+        assert fixed.threshold == before and not fixed.wants_query_null
 
 
 # --- every detector, paired traversals ------------------------------------------------------
@@ -89,9 +112,10 @@ def test_paired_detectors_calibrate_on_the_reference_and_log_it(name: str) -> No
     reference, query = _route(name)
     out = _run(name, reference, query)
     thresholds = [m for m in out if isinstance(m, AcceptThreshold)]
-    assert len(thresholds) == 1
-    t = thresholds[0]
-    assert t.auto and t.source == "reference" and t.n_wrong > 10 and 0 < t.threshold <= 1
+    assert [m.source for m in thresholds if m.source != "queries"] == ["reference"]
+    t = thresholds[-1]  # the queries' own null may have moved it down since (never up)
+    assert t.threshold <= thresholds[0].threshold
+    assert t.auto and t.n_wrong > 10 and 0 < t.threshold <= 1
     assert t.threshold > t.largest_wrong or t.false_accept_rate > 0
     results = [m for m in out if isinstance(m, LoopResult) and m.frame >= len(reference)]
     accepted = [r for r in results if r.accepted]
@@ -218,3 +242,32 @@ def test_a_stream_calibrates_on_its_first_frames_and_accepts_none_of_them() -> N
     accepted = [r for r in results if r.accepted]
     assert accepted and all(abs(r.match - (r.frame - 200)) <= 2 for r in accepted)
     assert detector.statistics()["accept_threshold"] == t[0].threshold
+
+
+def _look_alike_reference(amount: float, **params: Any) -> tuple[list[Message], int]:
+    """A reference with a look-alike stretch (frames 220-279 repeat 40-99): its own wrong
+    answers are confident there. The queries revisit only frames 100-219 (no look-alike),
+    seen under a change (``amount``). Returns the outputs and the reference's length."""
+    reference = route_descriptors(150, 2, seed=0)
+    reference[220:280] = noisy(reference[40:100], 0.05, seed=3)
+    query = noisy(reference[100:220], amount)
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    detector = HierarchicalSequence(HierarchicalSequence.Config(sequence_frames=20, **params))
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    return run_stages(np.concatenate([reference, query]), traversals, place_map, detector), len(reference)
+
+
+@pytest.mark.parametrize("amount", [0.2, 0.4])
+def test_the_queries_own_wrong_answers_lower_a_threshold_the_reference_set_too_high(amount: float) -> None:
+    out, n = _look_alike_reference(amount, accept_query_null_frames=50)
+    thresholds = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert thresholds[0].source == "reference" and thresholds[0].threshold > 0.5  # set by the look-alike
+    moved = [m for m in thresholds if m.source == "queries"]
+    assert moved and all(m.threshold < thresholds[0].threshold for m in moved) and moved[0].n_wrong >= 50
+    accepted = [m for m in out if isinstance(m, LoopResult) and m.frame >= n and m.accepted]
+    assert len(accepted) >= 40
+    assert np.mean([abs(r.match - (r.frame - n + 100)) <= 3 for r in accepted]) >= 0.95
+    # off: the reference's threshold alone, which accepts nothing here
+    out, n = _look_alike_reference(amount, accept_query_null=False)
+    assert [m.source for m in out if isinstance(m, AcceptThreshold)] == ["reference"]
+    assert not any(m.accepted for m in out if isinstance(m, LoopResult) and m.frame >= n)

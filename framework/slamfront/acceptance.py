@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from slamfront.core.operating_point import threshold_at_false_accept_rate
+from slamfront.core.operating_point import query_null_threshold, threshold_at_false_accept_rate
 from slamfront.messages import Message
 from slamfront.plugin import PluginConfig
 
@@ -44,6 +44,16 @@ class AcceptanceConfig(PluginConfig):
     accept_exclusion_frames: int = Field(
         50, ge=1, description="accept: auto with a reference: reference frames this close to a reference frame "
         "searched against the others are not wrong matches"
+    )
+    accept_query_null: bool = Field(
+        True, description="accept: auto with a reference, detectors that support it: the threshold may move down "
+        "to the same false_accept_rate of the queries' own leave-the-answer-out confidences (what the detector "
+        "answers with the answered stretch of the map left out: wrong by construction, under the queries' "
+        "appearance), once there are accept_query_null_frames of them; never above the reference's threshold"
+    )
+    accept_query_null_frames: int = Field(
+        50, ge=1, description="accept_query_null: query frames with a leave-the-answer-out confidence needed "
+        "before it may move the threshold"
     )
 
     @field_validator("accept")
@@ -73,7 +83,8 @@ class AcceptThreshold(Message):
     threshold: float
     auto: bool
     source: str
-    """``reference`` (against itself), ``stream`` (its first frames) or ``given``."""
+    """``reference`` (against itself), ``stream`` (its first frames), ``queries`` (the queries'
+    leave-the-answer-out confidences, logged whenever they move the threshold) or ``given``."""
     n_wrong: int
     """Wrong answers the threshold was calibrated on (0 when given)."""
     false_accept_rate: float
@@ -95,6 +106,9 @@ class Acceptance:
         self.threshold: float | None = None if self.auto else float(config.accept)
         self.n_wrong = 0
         self._stream_wrong: list[float] = []
+        self._null: list[float] = []  # the queries' leave-the-answer-out confidences (one per query frame)
+        self.reference_threshold: float | None = None
+        self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
         if not self.auto:
             self._outbox.append(AcceptThreshold(detector, float(self.threshold), False, "given", 0,  # type: ignore[arg-type]
@@ -114,11 +128,39 @@ class Acceptance:
         rate = self._config.false_accept_rate
         self.threshold = threshold_at_false_accept_rate(values, rate)
         self.n_wrong = len(values)
+        if source == "reference":
+            self.reference_threshold = self._logged = self.threshold
         self._outbox.append(AcceptThreshold(
             self._detector, self.threshold, True, source, len(values), rate,
             float(values.max()) if len(values) else float("nan"),
         ))
         return self.threshold
+
+    @property
+    def wants_query_null(self) -> bool:
+        """Whether :meth:`query_null` is used (a detector may skip the extra search otherwise)."""
+        return self.auto and self._config.accept_query_null and self.reference_threshold is not None
+
+    def query_null(self, confidence: float, frames: int = 1) -> None:
+        """A query's leave-the-answer-out confidence (the detector's answer with the answered
+        stretch of the map left out: wrong by construction), for ``frames`` query frames.
+        With ``accept_query_null`` and a calibrated reference threshold, once there are
+        ``accept_query_null_frames`` of them the threshold is the smaller of the reference's and
+        the same ``false_accept_rate`` quantile of these (:func:`query_null_threshold`): it moves
+        down only as far as wrong answers under the queries' own appearance allow."""
+        if not self.wants_query_null or not np.isfinite(confidence):
+            return
+        self._null.extend([float(confidence)] * frames)
+        if len(self._null) < self._config.accept_query_null_frames:
+            return
+        threshold = query_null_threshold(self.reference_threshold, self._null, self._config.false_accept_rate)
+        self.threshold = threshold
+        if abs(threshold - self._logged) > 0.005:  # log it when it first moves, and each time it moves again
+            self._logged = threshold
+            self._outbox.append(AcceptThreshold(
+                self._detector, float(self.threshold), True, "queries", len(self._null),  # type: ignore[arg-type]
+                self._config.false_accept_rate, float(max(self._null)),
+            ))
 
     def stream_answer(self, position: int, confidence: float) -> bool:
         """A stream's answer to its ``position``-th frame (0-based): gathered as a wrong one while
@@ -142,5 +184,8 @@ class Acceptance:
         return out
 
     def statistics(self) -> dict[str, float | int]:
-        return {"accept_threshold": float("nan") if self.threshold is None else self.threshold,
-                "accept_auto": int(self.auto), "accept_n_wrong": self.n_wrong}
+        nan = float("nan")
+        return {"accept_threshold": nan if self.threshold is None else self.threshold,
+                "accept_auto": int(self.auto), "accept_n_wrong": self.n_wrong,
+                "accept_threshold_reference": nan if self.reference_threshold is None else self.reference_threshold,
+                "accept_n_query_null": len(self._null)}

@@ -40,6 +40,17 @@ def threshold_at_false_accept_rate(wrong: np.ndarray, rate: float, margin: float
     return float(min(1.0, np.nextafter(above, np.inf) * margin))
 
 
+def query_null_threshold(reference: float, null: np.ndarray | list[float], rate: float) -> float:
+    """The threshold under the queries' own appearance: the ``rate`` threshold of ``null``
+    (the queries' leave-the-answer-out confidences: what the detector answers with the
+    answered stretch of the map left out, wrong by construction), but never above
+    ``reference`` (the threshold from the reference against itself). A query traversal
+    seen under another appearance (dusk, night, another season) answers every place, right
+    or wrong, less confidently than the reference answers itself, so the reference's
+    threshold is too high for it; its own wrong answers say how far down it may go."""
+    return min(float(reference), threshold_at_false_accept_rate(np.asarray(null, dtype=np.float64), rate))
+
+
 def exclusion_window(n: int, frames: int) -> int:
     """The temporal exclusion window for a traversal of ``n`` frames: ``frames``, but at most a
     tenth of the traversal (at least 1), so a short reference (a room's 111 frames) keeps

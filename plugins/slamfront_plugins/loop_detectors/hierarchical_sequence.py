@@ -44,6 +44,7 @@ from pydantic import Field, model_validator
 
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
+from slamfront.core.operating_point import exclusion_window
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
     Cone,
@@ -79,7 +80,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
 
     name = "hierarchical_sequence"
     branch_keys = ("consistent", "validated_by_next", "isolated", "inconsistent", "track_answers", "outside_map",
-                   "stationary")
+                   "stationary", "leave_answer_out")
 
     class Config(PlaceSequenceConfig):
         """Where each default comes from, and what changing it does on data it was not chosen on:
@@ -233,6 +234,8 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
         self._waiting: _Answer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
+        self._null_track: tuple[Trajectory, int] | None = None  # the last leave-the-answer-out answer
+        self._null_run: list[float] = []  # and its run's confidences (accept_query_null)
         self._confidence_kind: str | None = None if c.confidence == "auto" else c.confidence
 
     def _seen(self, frame: int) -> None:
@@ -342,6 +345,9 @@ class HierarchicalSequence(PlaceSequenceDetector):
         best = trajectories[0][0]
         confidence = uniqueness(costs, ends, 0, c.uniqueness_window) if self._kind(stream) == "uniqueness" \
             else float(pm.similarity(best.cost))
+        if self._acceptance.wants_query_null and not stream:
+            self._leave_answer_out(places[-1], anchor, rows, n_map, map_informative, usable, trajectories,
+                                   velocities, cone, len(frames))
         consistent = self._consistent(best, end)
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
@@ -355,6 +361,66 @@ class HierarchicalSequence(PlaceSequenceDetector):
             return self._answers(record, "consistent" if consistent else "inconsistent", [best], record.confidence,
                                  (min(record.window_start, int(positions[0])), end))
         return self._settle(record)
+
+    def _leave_answer_out(
+        self, place: int, anchor: int, rows: np.ndarray, n_map: int, map_informative: np.ndarray, usable: int,
+        compared: list[tuple[Trajectory, int]], velocities: np.ndarray, cone: Cone | None, n_frames: int,
+    ) -> None:
+        """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`):
+        levels 1 and 2 again with the map places within the exclusion window of the answer left
+        out (and no track): whatever it answers then is wrong by construction. Its confidence is
+        an answer's: the uniqueness among the lines, the mean over its own run of consistent
+        leave-out answers (``evidence_iterations``), at most its line's ``line_check``. Left out: the map frames the answer's line
+        (``compared[0]``) pairs with the window's query frames, and the exclusion window either
+        side of them. The lines the iteration compared that stay clear of them compete too."""
+        c = self.config
+        if not len(rows):
+            return
+        pm = self.place_map
+        offsets = pm.place_offsets()
+        window = exclusion_window(n_map, c.accept_exclusion_frames)
+        answered = compared[0][0].at(rows).astype(np.int64)
+        first = max(0, int(np.searchsorted(offsets, int(answered.min()) - window, side="right")) - 1)
+        last = int(np.searchsorted(offsets, int(answered.max()) + window, side="right")) - 1
+        vector = pm.representatives([place])[0]
+        found: list[tuple[np.ndarray, np.ndarray]] = []
+        searched, computed = pm.search_distances, self._pairs.computed
+        for lo, hi in ((0, first - 1), (last + 1, usable - 1)):
+            if lo <= hi:
+                found.append(pm.nearest(vector, c.psi, lo=lo, hi=hi))
+        self._query_null_distances[0] += pm.search_distances - searched
+        if not found:
+            return
+        hits = np.concatenate([np.asarray(h, dtype=np.int64) for h, _ in found])
+        near = np.concatenate([np.asarray(d, dtype=np.float64) for _, d in found])
+        hits = hits[np.argsort(near, kind="stable")][: c.psi]
+        trajectories = compare_candidates(
+            self._pairs, [(anchor, int(offsets[h]), int(h)) for h in hits], rows, n_map, map_informative,
+            velocities=velocities, slack=c.anchor_slack, refine=c.refine, screen_frames=c.screen_frames,
+            screen_speeds=velocities, cone=cone, reverse_anchors=[int(offsets[h + 1]) - 1 for h in hits],
+            distinct=c.uniqueness_window if c.refine_apart else 0,
+        )
+        # a line that still crosses the answered stretch is not wrong by construction
+        kept = [t for t, _ in [*trajectories, *compared[1:]]
+                if np.abs(t.at(rows).astype(np.int64) - answered).min() > window]
+        if not kept:
+            self._query_null_distances[1] += self._pairs.computed - computed
+            return
+        self._count("leave_answer_out")
+        kept.sort(key=lambda t: t.cost)
+        end = int(rows[-1])
+        ends = np.asarray([int(t.at(end)) for t in kept])
+        confidence = uniqueness(np.asarray([t.cost for t in kept]), ends, 0, c.uniqueness_window)
+        # as an answer's: the mean over its run of consistent leave-out answers, at most its line's uniqueness
+        previous, self._null_track = self._null_track, (kept[0], end)
+        consistent = previous is not None and abs(int(kept[0].at(end)) - int(previous[0].at(end))) <= c.alpha
+        self._null_run = [*self._null_run, confidence] if consistent else [confidence]
+        confidence = float(np.mean(self._null_run[-c.evidence_iterations:]))
+        if c.line_check and confidence > 0:
+            confidence = min(confidence, line_uniqueness(self._pairs, rows, kept[0], c.anchor_slack,
+                                                         c.uniqueness_window, n_map, map_informative))
+        self._query_null_distances[1] += self._pairs.computed - computed
+        self._acceptance.query_null(confidence, n_frames)
 
     def _consistent(self, best: Trajectory, end: int) -> bool:
         """Temporal consistency (Alg. 3, ``alpha`` frames) of the new answer ``best``, whose Q

@@ -81,6 +81,7 @@ class PlaceSequenceDetector(LoopDetector):
         self._horizon: int | None = None
         """Calibration only: map places at positions from this one on are out of reach."""
         self._calibration_distances = (0, 0)  # (level-1 search, sequences) computed by the calibration
+        self._query_null_distances = [0, 0]  # (level-1 search, sequences) computed by the queries' null
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         place_map = stages.get("place_map")
@@ -261,15 +262,19 @@ class PlaceSequenceDetector(LoopDetector):
 
     def statistics(self) -> dict[str, float | int]:
         # the calibration's distances count in n_distances (the map counts its level-1 searches too)
+        # and so do the queries' leave-the-answer-out null's (accept_query_null)
         calibration = sum(self._calibration_distances)
-        search = (self._map.search_distances if self._map is not None else 0) - self._calibration_distances[0]
-        sequences = self._sequence_distances()
+        null_search, null_sequences = self._query_null_distances
+        search = (self._map.search_distances if self._map is not None else 0) - self._calibration_distances[0] \
+            - null_search
+        sequences = self._sequence_distances() - null_sequences
         stats: dict[str, float | int] = {
             "n_distances_calibration": calibration,
+            "n_distances_query_null": null_search + null_sequences,
             "n_searches": self._counts.get("searches", 0),
             "n_query_sequences": self._n_iterations,
             "n_query_frames": self._query_frames,
-            "n_distances": search + sequences + calibration,
+            "n_distances": search + sequences + calibration + null_search + null_sequences,
             "n_distances_search": search,
             "n_distances_sequences": sequences,
         }
