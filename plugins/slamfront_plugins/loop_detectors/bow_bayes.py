@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -13,7 +13,7 @@ from pydantic import Field, model_validator
 
 from slamfront import LoopDetector, Plugin, PluginError, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
-from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
+from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity, unique_word_pairs
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
@@ -28,6 +28,7 @@ from slamfront.core.vocabulary import (
     warm_up,
 )
 from slamfront.local_features import DESCRIPTORS, DescriptorName
+from slamfront.matching import Matcher, MatchingConfig
 from slamfront.messages import Features, LoopResult, Message
 from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
@@ -45,6 +46,8 @@ class _Place:
     bag: Counter[int]
     words: np.ndarray
     other_words: np.ndarray | None
+    keypoints: np.ndarray | None = None
+    """(N, 2) pixel positions of the features of ``words`` (the frame that made the place), for verification."""
 
     @property
     def frame(self) -> int:
@@ -116,6 +119,36 @@ class _Support:
         if step.likelihood.loop[int(np.argmax(step.posterior))] <= 1.0:
             confidence = 0.0  # the frame says nothing for the place (eq. 8's likelihood 1): the prior, not a loop
         return float(np.clip(confidence, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class _Verdict:
+    """The epipolar check of one hypothesis: accepted or not, and what it counted."""
+
+    passed: bool
+    pairs: int
+    inliers: int
+
+
+class _EpipolarCheck:
+    """RTAB-Map's verification of a loop hypothesis (Labbe & Michaud 2013; ``VhEp`` parameters):
+    the two images' features are paired through the words each has exactly once, a fundamental
+    matrix is fitted to the pairs by RANSAC (OpenCV, through :class:`slamfront.matching.Matcher`),
+    and the hypothesis passes with at least ``min_inliers`` pairs and as many inliers."""
+
+    def __init__(self, min_inliers: int, threshold_px: float, metric: str) -> None:
+        self.min_inliers = min_inliers
+        config = MatchingConfig(geometry="fundamental", ransac_threshold_px=threshold_px, ransac_confidence=0.99)
+        self._matcher = Matcher(config, metric, max_distance=float("inf"))  # only its RANSAC is used
+
+    def __call__(self, words: np.ndarray, keypoints: np.ndarray, place: _Place) -> _Verdict:
+        assert place.keypoints is not None
+        pairs = unique_word_pairs(words, place.words)
+        if len(pairs) < self.min_inliers:
+            return _Verdict(False, len(pairs), 0)
+        inlier, _ = self._matcher.verify(keypoints, place.keypoints, pairs)
+        inliers = int(inlier.sum())
+        return _Verdict(inliers >= self.min_inliers, len(pairs), inliers)
 
 
 class BowBayes(LoopDetector):
@@ -221,6 +254,20 @@ class BowBayes(LoopDetector):
         max_retrieved: int = Field(2, ge=0, description="places brought back from LTM per frame")
         retrieval_radius: int = Field(3, ge=0, description="neighbours of the best hypothesis retrieved / kept")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
+        verify: Literal["auto", "epipolar", "none"] = Field(
+            "auto", description="epipolar: an answer at or above the threshold is accepted only if the query's and the "
+            "place's features, paired through shared words, fit a fundamental matrix (RANSAC) with min_inliers inliers "
+            "(RTAB-Map's hypothesis verification, Labbe & Michaud 2013); none: not verified; auto: epipolar with "
+            "accept: auto, none with a given accept (T_loop alone, as Wang et al. 2017)"
+        )
+        min_inliers: int = Field(
+            8, ge=8, description="epipolar verification: pairs and RANSAC inliers needed (RTAB-Map's VhEp/MatchCountMin "
+            "default, 8; the 7-point model fits 7 pairs of anything)"
+        )
+        verify_threshold_px: float = Field(
+            3.0, gt=0, description="epipolar verification: RANSAC distance to the epipolar line, in pixels (RTAB-Map's "
+            "VhEp/RansacParam1 default)"
+        )
 
         @model_validator(mode="after")
         def _ordered_thresholds(self) -> BowBayes.Config:
@@ -251,6 +298,8 @@ class BowBayes(LoopDetector):
         self._queries_started = False
         self._acceptance = Acceptance(c, self.name)
         self._reference_bags: list[tuple[int, Counter[int]]] = []
+        self._check: _EpipolarCheck | None = None
+        """Epipolar verification of accepted answers (made at the first frame: it needs the metric)."""
         """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
@@ -359,6 +408,7 @@ class BowBayes(LoopDetector):
             return [*outputs, self._statistics(frame.index, n, None, None, -1, False, transferred, 0, None, cost)]
 
         vocabularies = self._vocabulary_for(features)
+        keypoints = self._keypoints_of(features)
         rule = self.config.vocabulary_update
         thresholds = self.thresholds()
         other_seconds = 0.0
@@ -382,7 +432,8 @@ class BowBayes(LoopDetector):
         place = -1
         if keep:
             place = len(self._places)
-            self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words)
+            self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words,
+                                         keypoints)
             vocabularies.main.retain(quantised.words)
             if vocabularies.other is not None and other is not None:
                 vocabularies.other.retain(other.words)
@@ -415,6 +466,7 @@ class BowBayes(LoopDetector):
             else:
                 step, supported = self._search(bag)
                 result = self._answer(frame.index, step, supported, frame.traversal == "stream")
+                result = self._verified(result, step, quantised.words, keypoints)
                 if step.best >= 0:
                     if result.accepted and frame.traversal == "stream" and place >= 0:
                         self._memory.close_loop(place, step.best)
@@ -494,6 +546,51 @@ class BowBayes(LoopDetector):
             candidates=frames,
             match_frames=np.array(self._places[step.best].frames, dtype=np.int64),
         )
+
+    @property
+    def verifies(self) -> bool:
+        """Whether accepted answers go through epipolar verification (``verify``)."""
+        return self.config.verify == "epipolar" or (self.config.verify == "auto" and self._acceptance.auto)
+
+    def _keypoints_of(self, features: Features) -> np.ndarray | None:
+        """The frame's keypoints when answers are verified (None when not, or not given under verify: auto)."""
+        if not self.verifies:
+            return None
+        if features.keypoints is None:
+            if self.config.verify == "epipolar":
+                raise PluginError(f"frame {features.frame}: verify: epipolar needs keypoints; the descriptor stage gave "
+                                  "none (use local_features, or verify: none)")
+            return None
+        keypoints = np.asarray(features.keypoints, dtype=np.float32)
+        if keypoints.shape != (len(features.descriptors), 2):  # type: ignore[arg-type]
+            raise PluginError(f"frame {features.frame}: keypoints {keypoints.shape} do not fit "
+                              f"{len(features.descriptors)} descriptors (need (N, 2))")  # type: ignore[arg-type]
+        if self._check is None:
+            self._check = _EpipolarCheck(self.config.min_inliers, self.config.verify_threshold_px, features.metric)
+        return keypoints
+
+    def _verified(
+        self, result: LoopResult, step: BayesStep, words: np.ndarray, keypoints: np.ndarray | None
+    ) -> LoopResult:
+        """An accepted answer, kept only if the epipolar check passes (``verify``); others unchanged.
+
+        Only answers at or above the threshold are checked (RTAB-Map verifies only the hypothesis
+        the filter accepts), so the cost is one RANSAC per accepted answer. The confidence is not
+        changed: the precision-recall curve stays Wang et al. 2017's."""
+        if not (result.accepted and self.verifies and step.best >= 0):
+            return result
+        place = self._places[step.best]
+        if keypoints is None or place.keypoints is None or self._check is None:
+            self._counts["unverifiable"] += 1  # verify: auto on features without keypoints
+            return result
+        verdict = self._check(words, keypoints, place)
+        self._counts["verified"] += 1
+        if verdict.passed:
+            return result
+        self._counts["rejected_by_verification"] += 1
+        return replace(result, accepted=False, reason=(
+            f"rejected by epipolar verification: {verdict.inliers} RANSAC inliers of {verdict.pairs} unique-word pairs "
+            f"(min_inliers = {self.config.min_inliers})"))
 
     def _repeat_answer(self, frame: int, traversal: str, place: int) -> LoopResult:
         """A frame merged for T_sim is at the same place as the last one: same answer."""
@@ -638,6 +735,9 @@ class BowBayes(LoopDetector):
             "n_places_reference": len(self._places),
             "n_places_query": self._counts["queries"],
             "n_loops_accepted": self._counts["accepted"],
+            "n_loops_verified": self._counts["verified"],
+            "n_loops_rejected_by_verification": self._counts["rejected_by_verification"],
+            "n_loops_unverifiable": self._counts["unverifiable"],
             "n_frames_merged": self._counts["merged"],
             "n_frames_without_features": self._counts["no_features"],
             "n_places_transferred": self._counts["transferred"],
