@@ -37,6 +37,16 @@ CALIBRATION_FRAMES = 1000
 """accept: auto with a reference: at most this many of its last frames are searched against the rest of it."""
 
 
+@dataclass(frozen=True)
+class _View:
+    """One frame's features as verification needs them: (N, 2) pixel positions, (N, D) descriptors,
+    (N,) word ids (-1: a word no place keeps)."""
+
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    words: np.ndarray
+
+
 @dataclass
 class _Place:
     """What the detector keeps of a place: the frames it covers and its words."""
@@ -46,8 +56,8 @@ class _Place:
     bag: Counter[int]
     words: np.ndarray
     other_words: np.ndarray | None
-    keypoints: np.ndarray | None = None
-    """(N, 2) pixel positions of the features of ``words`` (the frame that made the place), for verification."""
+    view: _View | None = None
+    """The features of the frame that made the place, for epipolar verification (``verify``)."""
 
     @property
     def frame(self) -> int:
@@ -123,32 +133,36 @@ class _Support:
 
 @dataclass(frozen=True)
 class _Verdict:
-    """The epipolar check of one hypothesis: accepted or not, and what it counted."""
+    """The epipolar check of one hypothesis: the putative pairs and how many fit one fundamental matrix."""
 
-    passed: bool
     pairs: int
     inliers: int
 
 
 class _EpipolarCheck:
-    """RTAB-Map's verification of a loop hypothesis (Labbe & Michaud 2013; ``VhEp`` parameters):
-    the two images' features are paired through the words each has exactly once, a fundamental
-    matrix is fitted to the pairs by RANSAC (OpenCV, through :class:`slamfront.matching.Matcher`),
-    and the hypothesis passes with at least ``min_inliers`` pairs and as many inliers."""
+    """RTAB-Map's verification of a loop hypothesis (Labbe & Michaud 2013, its ``VhEp`` parameters):
+    the query's and the place's features are paired, a fundamental matrix is fitted to the pairs by
+    RANSAC (OpenCV's, through :class:`slamfront.matching.Matcher`: ``threshold_px`` from the
+    epipolar line, confidence 0.99), and the inliers are counted.
 
-    def __init__(self, min_inliers: int, threshold_px: float, metric: str) -> None:
-        self.min_inliers = min_inliers
-        config = MatchingConfig(geometry="fundamental", ransac_threshold_px=threshold_px, ransac_confidence=0.99)
-        self._matcher = Matcher(config, metric, max_distance=float("inf"))  # only its RANSAC is used
+    Pairs: ``words``, RTAB-Map's, the words each image has exactly once; ``descriptors``, each
+    query feature's nearest place feature passing the 0.8 ratio test (RTAB-Map's NNDR) and
+    cross-checked, so a frame whose features were quantised to other words (a changed appearance)
+    can still show the geometry it shares with the place."""
 
-    def __call__(self, words: np.ndarray, keypoints: np.ndarray, place: _Place) -> _Verdict:
-        assert place.keypoints is not None
-        pairs = unique_word_pairs(words, place.words)
-        if len(pairs) < self.min_inliers:
-            return _Verdict(False, len(pairs), 0)
-        inlier, _ = self._matcher.verify(keypoints, place.keypoints, pairs)
-        inliers = int(inlier.sum())
-        return _Verdict(inliers >= self.min_inliers, len(pairs), inliers)
+    def __init__(self, pairs: Literal["words", "descriptors"], threshold_px: float, metric: str) -> None:
+        self.pairs = pairs
+        config = MatchingConfig(geometry="fundamental", ratio=0.8, cross_check=True,
+                                ransac_threshold_px=threshold_px, ransac_confidence=0.99)
+        self._matcher = Matcher(config, metric, max_distance=float("inf"))
+
+    def __call__(self, query: _View, place: _View) -> _Verdict:
+        if self.pairs == "words":
+            pairs = unique_word_pairs(query.words, place.words)
+        else:
+            pairs, _ = self._matcher.putative(query.descriptors, place.descriptors)
+        inlier, _ = self._matcher.verify(query.keypoints, place.keypoints, pairs)
+        return _Verdict(len(pairs), int(inlier.sum()))
 
 
 class BowBayes(LoopDetector):
@@ -260,9 +274,15 @@ class BowBayes(LoopDetector):
             "(RTAB-Map's hypothesis verification, Labbe & Michaud 2013); none: not verified; auto: epipolar with "
             "accept: auto, none with a given accept (T_loop alone, as Wang et al. 2017)"
         )
-        min_inliers: int = Field(
-            8, ge=8, description="epipolar verification: pairs and RANSAC inliers needed (RTAB-Map's VhEp/MatchCountMin "
-            "default, 8; the 7-point model fits 7 pairs of anything)"
+        verify_pairs: Literal["descriptors", "words"] = Field(
+            "descriptors", description="epipolar verification: features paired by descriptor (nearest neighbour, "
+            "ratio 0.8, cross-checked) or through the words each image has exactly once (RTAB-Map's)"
+        )
+        min_inliers: int | Literal["auto"] = Field(
+            "auto", description="epipolar verification: RANSAC inliers needed; auto: above the inliers of every wrong "
+            "answer the threshold is calibrated on (the reference against itself outside the exclusion window, or a "
+            "stream's first frames; false_accept_rate applies), and at least 8 (RTAB-Map's VhEp/MatchCountMin: the "
+            "7-point model fits 7 pairs of anything)"
         )
         verify_threshold_px: float = Field(
             3.0, gt=0, description="epipolar verification: RANSAC distance to the epipolar line, in pixels (RTAB-Map's "
@@ -297,9 +317,15 @@ class BowBayes(LoopDetector):
         self._last_answer: dict[str, LoopResult] = {}
         self._queries_started = False
         self._acceptance = Acceptance(c, self.name)
-        self._reference_bags: list[tuple[int, Counter[int]]] = []
+        self._reference_bags: list[tuple[int, Counter[int], _View | None]] = []
         self._check: _EpipolarCheck | None = None
         """Epipolar verification of accepted answers (made at the first frame: it needs the metric)."""
+        self._min_inliers: int | None = (
+            self.config.min_inliers if self.config.min_inliers != "auto"
+            else None if self._acceptance.auto else 8  # a given accept: nothing is calibrated, RTAB-Map's default
+        )
+        self._wrong_inliers: list[int] = []
+        """min_inliers: auto in a stream: the inliers of the answers in the first frames (all wrong)."""
         """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
@@ -433,7 +459,7 @@ class BowBayes(LoopDetector):
         if keep:
             place = len(self._places)
             self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words,
-                                         keypoints)
+                                         self._view(keypoints, descriptors, quantised.words, len(vocabularies.main)))
             vocabularies.main.retain(quantised.words)
             if vocabularies.other is not None and other is not None:
                 vocabularies.other.retain(other.words)
@@ -453,7 +479,8 @@ class BowBayes(LoopDetector):
             self._previous_bag[frame.traversal] = bag
         if frame.traversal == "reference" and self._acceptance.auto and not (
                 similar and self.config.merged_frames == "repeat"):
-            self._reference_bags.append((frame.index, bag))  # searched as a query frame would be
+            view = self._view(keypoints, descriptors, quantised.words, len(vocabularies.main))
+            self._reference_bags.append((frame.index, bag, view))  # searched as a query frame would be
 
         outputs = []
         step: BayesStep | None = None
@@ -466,7 +493,8 @@ class BowBayes(LoopDetector):
             else:
                 step, supported = self._search(bag)
                 result = self._answer(frame.index, step, supported, frame.traversal == "stream")
-                result = self._verified(result, step, quantised.words, keypoints)
+                view = self._view(keypoints, descriptors, quantised.words, len(vocabularies.main))
+                result = self._verified(result, step, view, frame.traversal == "stream")
                 if step.best >= 0:
                     if result.accepted and frame.traversal == "stream" and place >= 0:
                         self._memory.close_loop(place, step.best)
@@ -505,8 +533,8 @@ class BowBayes(LoopDetector):
         first = np.asarray([self._places[p].frames[0] for p in working.tolist()])
         last = np.asarray([max(self._places[p].frames) for p in working.tolist()])
         bayes, support = BayesFilter(self._filter.parameters), _Support(self._filter.parameters)
-        wrong = []
-        for frame, bag in bags[-CALIBRATION_FRAMES:]:
+        wrong, inliers = [], []
+        for frame, bag, view in bags[-CALIBRATION_FRAMES:]:
             hypotheses = working[(last < frame - window) | (first > frame + window)]
             if not len(hypotheses):
                 continue
@@ -514,7 +542,27 @@ class BowBayes(LoopDetector):
             step = bayes.update(hypotheses, similarities)
             if step.best >= 0:
                 wrong.append(support.update(step, similarities))
+                inliers.extend(self._inliers_of(view, step.best))
         self._acceptance.calibrate(wrong, "reference")
+        self._calibrate_inliers(inliers)
+
+    def _inliers_of(self, view: _View | None, place: int) -> list[int]:
+        """min_inliers: auto: the RANSAC inliers of a wrong answer (none when it cannot be verified)."""
+        record = self._places[place].view
+        if self._min_inliers is not None or self._check is None or view is None or record is None:
+            return []
+        return [self._check(view, record).inliers]
+
+    def _calibrate_inliers(self, wrong: list[int]) -> None:
+        """min_inliers: auto: one more than the wrong answers' inliers (all but false_accept_rate of
+        them), at least 8, RTAB-Map's VhEp/MatchCountMin (the 7-point model fits any 7 pairs)."""
+        if self._min_inliers is not None or not self.verifies:
+            return
+        values = np.sort(np.asarray(wrong, dtype=np.int64))
+        allowed = int(np.floor(self.config.false_accept_rate * len(values)))
+        above = int(values[len(values) - 1 - allowed]) if len(values) else 0
+        self._min_inliers = max(8, above + 1)
+        self._counts["inliers_calibrated_on"] = len(values)
 
     # --- steps --------------------------------------------------------------------
 
@@ -566,31 +614,45 @@ class BowBayes(LoopDetector):
             raise PluginError(f"frame {features.frame}: keypoints {keypoints.shape} do not fit "
                               f"{len(features.descriptors)} descriptors (need (N, 2))")  # type: ignore[arg-type]
         if self._check is None:
-            self._check = _EpipolarCheck(self.config.min_inliers, self.config.verify_threshold_px, features.metric)
+            self._check = _EpipolarCheck(self.config.verify_pairs, self.config.verify_threshold_px, features.metric)
         return keypoints
 
-    def _verified(
-        self, result: LoopResult, step: BayesStep, words: np.ndarray, keypoints: np.ndarray | None
-    ) -> LoopResult:
+    def _view(self, keypoints: np.ndarray | None, descriptors: np.ndarray, words: np.ndarray, kept: int) -> _View | None:
+        """The frame's features for verification (None when answers are not verified); words at or
+        above ``kept`` were forgotten (the frame made no place) and pair with nothing."""
+        if keypoints is None:
+            return None
+        return _View(keypoints, np.array(descriptors), np.where(words < kept, words, -1))
+
+    def _verified(self, result: LoopResult, step: BayesStep, view: _View | None, stream: bool) -> LoopResult:
         """An accepted answer, kept only if the epipolar check passes (``verify``); others unchanged.
 
         Only answers at or above the threshold are checked (RTAB-Map verifies only the hypothesis
         the filter accepts), so the cost is one RANSAC per accepted answer. The confidence is not
-        changed: the precision-recall curve stays Wang et al. 2017's."""
-        if not (result.accepted and self.verifies and step.best >= 0):
+        changed: the precision-recall curve stays Wang et al. 2017's. In a stream under
+        ``min_inliers: auto``, the answers of the first frames (wrong: nothing is revisited yet)
+        are checked too, to calibrate the minimum."""
+        if not self.verifies or step.best < 0:
             return result
-        place = self._places[step.best]
-        if keypoints is None or place.keypoints is None or self._check is None:
+        if stream and self._min_inliers is None:
+            if not self._acceptance.calibrated:
+                self._wrong_inliers.extend(self._inliers_of(view, step.best))
+                return result
+            self._calibrate_inliers(self._wrong_inliers)
+        if not result.accepted:
+            return result
+        place = self._places[step.best].view
+        if view is None or place is None or self._check is None or self._min_inliers is None:
             self._counts["unverifiable"] += 1  # verify: auto on features without keypoints
             return result
-        verdict = self._check(words, keypoints, place)
+        verdict = self._check(view, place)
         self._counts["verified"] += 1
-        if verdict.passed:
-            return result
+        if verdict.inliers >= self._min_inliers:
+            return replace(result, reason=f"verified: {verdict.inliers} RANSAC inliers of {verdict.pairs} pairs")
         self._counts["rejected_by_verification"] += 1
         return replace(result, accepted=False, reason=(
-            f"rejected by epipolar verification: {verdict.inliers} RANSAC inliers of {verdict.pairs} unique-word pairs "
-            f"(min_inliers = {self.config.min_inliers})"))
+            f"rejected by epipolar verification: {verdict.inliers} RANSAC inliers of {verdict.pairs} pairs "
+            f"(min_inliers = {self._min_inliers})"))
 
     def _repeat_answer(self, frame: int, traversal: str, place: int) -> LoopResult:
         """A frame merged for T_sim is at the same place as the last one: same answer."""
@@ -738,6 +800,8 @@ class BowBayes(LoopDetector):
             "n_loops_verified": self._counts["verified"],
             "n_loops_rejected_by_verification": self._counts["rejected_by_verification"],
             "n_loops_unverifiable": self._counts["unverifiable"],
+            "verify_min_inliers": -1 if self._min_inliers is None else self._min_inliers,
+            "verify_n_wrong": self._counts["inliers_calibrated_on"],
             "n_frames_merged": self._counts["merged"],
             "n_frames_without_features": self._counts["no_features"],
             "n_places_transferred": self._counts["transferred"],
