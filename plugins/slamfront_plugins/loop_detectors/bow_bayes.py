@@ -423,6 +423,8 @@ class BowBayes(LoopDetector):
             self._into_working(self._memory.flush())
             if self._acceptance.auto:
                 self._calibrate_on_reference()
+                # once per run, not the frame's work: its time must not trip the memory's budget
+                started = self.clock()
         descriptors = features.descriptors
         n = len(descriptors)
         if n < self.config.min_features:
