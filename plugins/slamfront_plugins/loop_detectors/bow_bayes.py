@@ -139,6 +139,11 @@ class _Verdict:
     inliers: int
 
 
+def _matchable(descriptors: np.ndarray) -> np.ndarray:
+    """Descriptors as OpenCV's matcher takes them (float32 or uint8)."""
+    return descriptors.astype(np.float32) if descriptors.dtype == np.float16 else descriptors
+
+
 class _EpipolarCheck:
     """RTAB-Map's verification of a loop hypothesis (Labbe & Michaud 2013, its ``VhEp`` parameters):
     the query's and the place's features are paired, a fundamental matrix is fitted to the pairs by
@@ -160,7 +165,7 @@ class _EpipolarCheck:
         if self.pairs == "words":
             pairs = unique_word_pairs(query.words, place.words)
         else:
-            pairs, _ = self._matcher.putative(query.descriptors, place.descriptors)
+            pairs, _ = self._matcher.putative(_matchable(query.descriptors), _matchable(place.descriptors))
         inlier, _ = self._matcher.verify(query.keypoints, place.keypoints, pairs)
         return _Verdict(len(pairs), int(inlier.sum()))
 
@@ -638,7 +643,10 @@ class BowBayes(LoopDetector):
         above ``kept`` were forgotten (the frame made no place) and pair with nothing."""
         if keypoints is None:
             return None
-        return _View(keypoints, np.array(descriptors), np.where(words < kept, words, -1))
+        # float descriptors kept as float16: half the memory (a place keeps its frame's features for good;
+        # OpenCV's SIFT values are integers below 2048, exact in float16)
+        kept_descriptors = descriptors.astype(np.float16) if descriptors.dtype.kind == "f" else np.array(descriptors)
+        return _View(keypoints, kept_descriptors, np.where(words < kept, words, -1))
 
     def _verified(self, result: LoopResult, step: BayesStep, view: _View | None, stream: bool) -> LoopResult:
         """An accepted answer, kept only if the epipolar check passes (``verify``); others unchanged.
