@@ -35,6 +35,18 @@ def similarity(a: Counter[int], b: Counter[int]) -> float:
     return pairs / size
 
 
+def unique_word_pairs(words_a: np.ndarray, words_b: np.ndarray) -> np.ndarray:
+    """Feature pairs of two images through the words each image has exactly once (RTAB-Map's
+    pairs for epipolar verification, Labbe & Michaud 2013): (K, 2) int64 indices into
+    ``words_a`` / ``words_b``. Negative word ids (words kept by no place) pair with nothing."""
+    a, b = np.asarray(words_a, np.int64), np.asarray(words_b, np.int64)
+    ids_a, first_a, counts_a = np.unique(a, return_index=True, return_counts=True)
+    ids_b, first_b, counts_b = np.unique(b, return_index=True, return_counts=True)
+    once_a, once_b = (counts_a == 1) & (ids_a >= 0), (counts_b == 1) & (ids_b >= 0)
+    _, in_a, in_b = np.intersect1d(ids_a[once_a], ids_b[once_b], assume_unique=True, return_indices=True)
+    return np.stack([first_a[once_a][in_a], first_b[once_b][in_b]], axis=1).astype(np.int64).reshape(-1, 2)
+
+
 class InvertedIndex:
     """Word -> places that contain it, so one image is compared with every place at once.
 

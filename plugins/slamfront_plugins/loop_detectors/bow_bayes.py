@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -13,7 +13,7 @@ from pydantic import Field, model_validator
 
 from slamfront import LoopDetector, Plugin, PluginError, StageInputs
 from slamfront.acceptance import Acceptance, AcceptanceConfig
-from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity
+from slamfront.core.bag_of_words import InvertedIndex, bag_of, similarity, unique_word_pairs
 from slamfront.core.bayes_filter import BayesFilter, BayesParameters, BayesStep
 from slamfront.core.errors import CoreError
 from slamfront.core.memory import LinearTimeModel, MemoryManager, MemoryParameters
@@ -28,12 +28,23 @@ from slamfront.core.vocabulary import (
     warm_up,
 )
 from slamfront.local_features import DESCRIPTORS, DescriptorName
+from slamfront.matching import Matcher, MatchingConfig
 from slamfront.messages import Features, LoopResult, Message
 from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
 from slamfront_plugins.loop_detectors.bow_thresholds import ND_THRESHOLDS
 
 CALIBRATION_FRAMES = 1000
 """accept: auto with a reference: at most this many of its last frames are searched against the rest of it."""
+
+
+@dataclass(frozen=True)
+class _View:
+    """One frame's features as verification needs them: (N, 2) pixel positions, (N, D) descriptors,
+    (N,) word ids (-1: a word no place keeps)."""
+
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    words: np.ndarray
 
 
 @dataclass
@@ -45,6 +56,8 @@ class _Place:
     bag: Counter[int]
     words: np.ndarray
     other_words: np.ndarray | None
+    view: _View | None = None
+    """The features of the frame that made the place, for epipolar verification (``verify``)."""
 
     @property
     def frame(self) -> int:
@@ -116,6 +129,45 @@ class _Support:
         if step.likelihood.loop[int(np.argmax(step.posterior))] <= 1.0:
             confidence = 0.0  # the frame says nothing for the place (eq. 8's likelihood 1): the prior, not a loop
         return float(np.clip(confidence, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class _Verdict:
+    """The epipolar check of one hypothesis: the putative pairs and how many fit one fundamental matrix."""
+
+    pairs: int
+    inliers: int
+
+
+def _matchable(descriptors: np.ndarray) -> np.ndarray:
+    """Descriptors as OpenCV's matcher takes them (float32 or uint8)."""
+    return descriptors.astype(np.float32) if descriptors.dtype == np.float16 else descriptors
+
+
+class _EpipolarCheck:
+    """RTAB-Map's verification of a loop hypothesis (Labbe & Michaud 2013, its ``VhEp`` parameters):
+    the query's and the place's features are paired, a fundamental matrix is fitted to the pairs by
+    RANSAC (OpenCV's, through :class:`slamfront.matching.Matcher`: ``threshold_px`` from the
+    epipolar line, confidence 0.99), and the inliers are counted.
+
+    Pairs: ``words``, RTAB-Map's, the words each image has exactly once; ``descriptors``, each
+    query feature's nearest place feature passing the 0.8 ratio test (RTAB-Map's NNDR) and
+    cross-checked, so a frame whose features were quantised to other words (a changed appearance)
+    can still show the geometry it shares with the place."""
+
+    def __init__(self, pairs: Literal["words", "descriptors"], threshold_px: float, metric: str) -> None:
+        self.pairs = pairs
+        config = MatchingConfig(geometry="fundamental", ratio=0.8, cross_check=True,
+                                ransac_threshold_px=threshold_px, ransac_confidence=0.99)
+        self._matcher = Matcher(config, metric, max_distance=float("inf"))
+
+    def __call__(self, query: _View, place: _View) -> _Verdict:
+        if self.pairs == "words":
+            pairs = unique_word_pairs(query.words, place.words)
+        else:
+            pairs, _ = self._matcher.putative(_matchable(query.descriptors), _matchable(place.descriptors))
+        inlier, _ = self._matcher.verify(query.keypoints, place.keypoints, pairs)
+        return _Verdict(len(pairs), int(inlier.sum()))
 
 
 class BowBayes(LoopDetector):
@@ -221,6 +273,26 @@ class BowBayes(LoopDetector):
         max_retrieved: int = Field(2, ge=0, description="places brought back from LTM per frame")
         retrieval_radius: int = Field(3, ge=0, description="neighbours of the best hypothesis retrieved / kept")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
+        verify: Literal["auto", "epipolar", "none"] = Field(
+            "auto", description="epipolar: an answer at or above the threshold is accepted only if the query's and the "
+            "place's features, paired through shared words, fit a fundamental matrix (RANSAC) with min_inliers inliers "
+            "(RTAB-Map's hypothesis verification, Labbe & Michaud 2013); none: not verified; auto: epipolar with "
+            "accept: auto, none with a given accept (T_loop alone, as Wang et al. 2017)"
+        )
+        verify_pairs: Literal["descriptors", "words"] = Field(
+            "descriptors", description="epipolar verification: features paired by descriptor (nearest neighbour, "
+            "ratio 0.8, cross-checked) or through the words each image has exactly once (RTAB-Map's)"
+        )
+        min_inliers: int | Literal["auto"] = Field(
+            "auto", description="epipolar verification: RANSAC inliers needed; auto: above the inliers of every wrong "
+            "answer the threshold is calibrated on (the reference against itself outside the exclusion window, or a "
+            "stream's first frames; false_accept_rate applies), and at least 8 (RTAB-Map's VhEp/MatchCountMin: the "
+            "7-point model fits 7 pairs of anything)"
+        )
+        verify_threshold_px: float = Field(
+            3.0, gt=0, description="epipolar verification: RANSAC distance to the epipolar line, in pixels (RTAB-Map's "
+            "VhEp/RansacParam1 default)"
+        )
 
         @model_validator(mode="after")
         def _ordered_thresholds(self) -> BowBayes.Config:
@@ -250,7 +322,16 @@ class BowBayes(LoopDetector):
         self._last_answer: dict[str, LoopResult] = {}
         self._queries_started = False
         self._acceptance = Acceptance(c, self.name)
-        self._reference_bags: list[tuple[int, Counter[int]]] = []
+        self._reference_bags: list[tuple[int, Counter[int], _View | None]] = []
+        self._check: _EpipolarCheck | None = None
+        """Epipolar verification of accepted answers (made at the first frame: it needs the metric)."""
+        self._min_inliers: int | None = (
+            self.config.min_inliers if self.config.min_inliers != "auto"
+            else None if self._acceptance.auto else 8  # a given accept: nothing is calibrated, RTAB-Map's default
+        )
+        self._wrong_inliers: list[int] = []
+        self._wrong_inliers_summary = (float("nan"), float("nan"))
+        """min_inliers: auto in a stream: the inliers of the answers in the first frames (all wrong)."""
         """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
@@ -347,6 +428,8 @@ class BowBayes(LoopDetector):
             self._into_working(self._memory.flush())
             if self._acceptance.auto:
                 self._calibrate_on_reference()
+                # once per run, not the frame's work: its time must not trip the memory's budget
+                started = self.clock()
         descriptors = features.descriptors
         n = len(descriptors)
         if n < self.config.min_features:
@@ -359,6 +442,7 @@ class BowBayes(LoopDetector):
             return [*outputs, self._statistics(frame.index, n, None, None, -1, False, transferred, 0, None, cost)]
 
         vocabularies = self._vocabulary_for(features)
+        keypoints = self._keypoints_of(features)
         rule = self.config.vocabulary_update
         thresholds = self.thresholds()
         other_seconds = 0.0
@@ -382,7 +466,8 @@ class BowBayes(LoopDetector):
         place = -1
         if keep:
             place = len(self._places)
-            self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words)
+            self._places[place] = _Place([frame.index], bag, quantised.words, None if other is None else other.words,
+                                         self._view(keypoints, descriptors, quantised.words, len(vocabularies.main)))
             vocabularies.main.retain(quantised.words)
             if vocabularies.other is not None and other is not None:
                 vocabularies.other.retain(other.words)
@@ -402,7 +487,8 @@ class BowBayes(LoopDetector):
             self._previous_bag[frame.traversal] = bag
         if frame.traversal == "reference" and self._acceptance.auto and not (
                 similar and self.config.merged_frames == "repeat"):
-            self._reference_bags.append((frame.index, bag))  # searched as a query frame would be
+            view = self._view(keypoints, descriptors, quantised.words, len(vocabularies.main))
+            self._reference_bags.append((frame.index, bag, view))  # searched as a query frame would be
 
         outputs = []
         step: BayesStep | None = None
@@ -415,6 +501,8 @@ class BowBayes(LoopDetector):
             else:
                 step, supported = self._search(bag)
                 result = self._answer(frame.index, step, supported, frame.traversal == "stream")
+                view = self._view(keypoints, descriptors, quantised.words, len(vocabularies.main))
+                result = self._verified(result, step, view, frame.traversal == "stream")
                 if step.best >= 0:
                     if result.accepted and frame.traversal == "stream" and place >= 0:
                         self._memory.close_loop(place, step.best)
@@ -453,8 +541,8 @@ class BowBayes(LoopDetector):
         first = np.asarray([self._places[p].frames[0] for p in working.tolist()])
         last = np.asarray([max(self._places[p].frames) for p in working.tolist()])
         bayes, support = BayesFilter(self._filter.parameters), _Support(self._filter.parameters)
-        wrong = []
-        for frame, bag in bags[-CALIBRATION_FRAMES:]:
+        wrong, inliers = [], []
+        for frame, bag, view in bags[-CALIBRATION_FRAMES:]:
             hypotheses = working[(last < frame - window) | (first > frame + window)]
             if not len(hypotheses):
                 continue
@@ -462,7 +550,40 @@ class BowBayes(LoopDetector):
             step = bayes.update(hypotheses, similarities)
             if step.best >= 0:
                 wrong.append(support.update(step, similarities))
+                if not self._across_the_ends(frame, self._places[step.best].frames, bags[0][0], bags[-1][0], window):
+                    inliers.extend(self._inliers_of(view, step.best))
         self._acceptance.calibrate(wrong, "reference")
+        self._calibrate_inliers(inliers)
+
+    @staticmethod
+    def _across_the_ends(frame: int, place_frames: list[int], start: int, end: int, window: int) -> bool:
+        """Whether a reference frame near one end of the reference answered a place near the other:
+        left out of the inliers' calibration, as a closed route (a circuit, the synthetic street)
+        revisits its first frames at its end, and those pairs share real geometry (24 inliers of 25
+        on the synthetic street's world 0, where no wrong pair away from the ends reaches 16)."""
+        near_start, near_end = (lambda f: f - start < window), (lambda f: end - f < window)
+        return ((near_start(frame) and any(near_end(f) for f in place_frames))
+                or (near_end(frame) and any(near_start(f) for f in place_frames)))
+
+    def _inliers_of(self, view: _View | None, place: int) -> list[int]:
+        """min_inliers: auto: the RANSAC inliers of a wrong answer (none when it cannot be verified)."""
+        record = self._places[place].view
+        if self._min_inliers is not None or self._check is None or view is None or record is None:
+            return []
+        return [self._check(view, record).inliers]
+
+    def _calibrate_inliers(self, wrong: list[int]) -> None:
+        """min_inliers: auto: one more than the wrong answers' inliers (all but false_accept_rate of
+        them), at least 8, RTAB-Map's VhEp/MatchCountMin (the 7-point model fits any 7 pairs)."""
+        if self._min_inliers is not None or not self.verifies:
+            return
+        values = np.sort(np.asarray(wrong, dtype=np.int64))
+        allowed = int(np.floor(self.config.false_accept_rate * len(values)))
+        above = int(values[len(values) - 1 - allowed]) if len(values) else 0
+        self._min_inliers = max(8, above + 1)
+        self._counts["inliers_calibrated_on"] = len(values)
+        self._wrong_inliers_summary = (float(np.median(values)) if len(values) else float("nan"),
+                                       float(np.percentile(values, 99)) if len(values) else float("nan"))
 
     # --- steps --------------------------------------------------------------------
 
@@ -494,6 +615,68 @@ class BowBayes(LoopDetector):
             candidates=frames,
             match_frames=np.array(self._places[step.best].frames, dtype=np.int64),
         )
+
+    @property
+    def verifies(self) -> bool:
+        """Whether accepted answers go through epipolar verification (``verify``)."""
+        return self.config.verify == "epipolar" or (self.config.verify == "auto" and self._acceptance.auto)
+
+    def _keypoints_of(self, features: Features) -> np.ndarray | None:
+        """The frame's keypoints when answers are verified (None when not, or not given under verify: auto)."""
+        if not self.verifies:
+            return None
+        if features.keypoints is None:
+            if self.config.verify == "epipolar":
+                raise PluginError(f"frame {features.frame}: verify: epipolar needs keypoints; the descriptor stage gave "
+                                  "none (use local_features, or verify: none)")
+            return None
+        keypoints = np.asarray(features.keypoints, dtype=np.float32)
+        if keypoints.shape != (len(features.descriptors), 2):  # type: ignore[arg-type]
+            raise PluginError(f"frame {features.frame}: keypoints {keypoints.shape} do not fit "
+                              f"{len(features.descriptors)} descriptors (need (N, 2))")  # type: ignore[arg-type]
+        if self._check is None:
+            self._check = _EpipolarCheck(self.config.verify_pairs, self.config.verify_threshold_px, features.metric)
+        return keypoints
+
+    def _view(self, keypoints: np.ndarray | None, descriptors: np.ndarray, words: np.ndarray, kept: int) -> _View | None:
+        """The frame's features for verification (None when answers are not verified); words at or
+        above ``kept`` were forgotten (the frame made no place) and pair with nothing."""
+        if keypoints is None:
+            return None
+        # float descriptors kept as float16: half the memory (a place keeps its frame's features for good;
+        # OpenCV's SIFT values are integers below 2048, exact in float16)
+        kept_descriptors = descriptors.astype(np.float16) if descriptors.dtype.kind == "f" else np.array(descriptors)
+        return _View(keypoints, kept_descriptors, np.where(words < kept, words, -1))
+
+    def _verified(self, result: LoopResult, step: BayesStep, view: _View | None, stream: bool) -> LoopResult:
+        """An accepted answer, kept only if the epipolar check passes (``verify``); others unchanged.
+
+        Only answers at or above the threshold are checked (RTAB-Map verifies only the hypothesis
+        the filter accepts), so the cost is one RANSAC per accepted answer. The confidence is not
+        changed: the precision-recall curve stays Wang et al. 2017's. In a stream under
+        ``min_inliers: auto``, the answers of the first frames (wrong: nothing is revisited yet)
+        are checked too, to calibrate the minimum."""
+        if not self.verifies or step.best < 0:
+            return result
+        if stream and self._min_inliers is None:
+            if not self._acceptance.calibrated:
+                self._wrong_inliers.extend(self._inliers_of(view, step.best))
+                return result
+            self._calibrate_inliers(self._wrong_inliers)
+        if not result.accepted:
+            return result
+        place = self._places[step.best].view
+        if view is None or place is None or self._check is None or self._min_inliers is None:
+            self._counts["unverifiable"] += 1  # verify: auto on features without keypoints
+            return result
+        verdict = self._check(view, place)
+        self._counts["verified"] += 1
+        if verdict.inliers >= self._min_inliers:
+            return replace(result, reason=f"verified: {verdict.inliers} RANSAC inliers of {verdict.pairs} pairs")
+        self._counts["rejected_by_verification"] += 1
+        return replace(result, accepted=False, reason=(
+            f"rejected by epipolar verification: {verdict.inliers} RANSAC inliers of {verdict.pairs} pairs "
+            f"(min_inliers = {self._min_inliers})"))
 
     def _repeat_answer(self, frame: int, traversal: str, place: int) -> LoopResult:
         """A frame merged for T_sim is at the same place as the last one: same answer."""
@@ -638,6 +821,13 @@ class BowBayes(LoopDetector):
             "n_places_reference": len(self._places),
             "n_places_query": self._counts["queries"],
             "n_loops_accepted": self._counts["accepted"],
+            "n_loops_verified": self._counts["verified"],
+            "n_loops_rejected_by_verification": self._counts["rejected_by_verification"],
+            "n_loops_unverifiable": self._counts["unverifiable"],
+            "verify_min_inliers": -1 if self._min_inliers is None else self._min_inliers,
+            "verify_n_wrong": self._counts["inliers_calibrated_on"],
+            "verify_wrong_inliers_median": self._wrong_inliers_summary[0],
+            "verify_wrong_inliers_p99": self._wrong_inliers_summary[1],
             "n_frames_merged": self._counts["merged"],
             "n_frames_without_features": self._counts["no_features"],
             "n_places_transferred": self._counts["transferred"],
