@@ -54,11 +54,12 @@ def test_refined_speeds_stay_on_the_settled_side_within_one_coarse_step() -> Non
 # --- SeqSLAM's paths ---------------------------------------------------------------------------------
 
 
-def test_compiled_path_search_equals_its_numpy_oracle() -> None:
-    columns = np.random.default_rng(0).random((50, 30))
-    scores = path_scores_block(columns, 10, 3, 0.5, 2.0, True)
+@pytest.mark.parametrize(("ds", "segment", "reverse"), [(10, 3, True), (10, 3, False), (40, 20, True)])
+def test_compiled_path_search_equals_its_numpy_oracle_to_the_bit(ds: int, segment: int, reverse: bool) -> None:
+    columns = np.random.default_rng(ds).random((70, ds + 20))
+    scores = path_scores_block(columns, ds, segment, 0.5, 2.0, reverse)
     for n in (0, 7, 19):
-        assert np.allclose(scores[n], path_scores_reference(columns[:, n:n + 11], 3, 0.5, 2.0, True))
+        assert np.array_equal(scores[n], path_scores_reference(columns[:, n:n + ds + 1], segment, 0.5, 2.0, reverse))
 
 
 def _difference_matrix(truth: np.ndarray, n_ref: int, seed: int = 0) -> np.ndarray:

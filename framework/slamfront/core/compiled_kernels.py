@@ -434,16 +434,20 @@ def path_sweep(columns, queries, half, bounds, offsets, directions, out, lo, hi)
                         r_hi = min(n_ref, n_ref - move)
                         if r_lo >= r_hi:
                             continue
-                        acc[r_lo:r_hi] = 0.0
+                        # slices, not ``acc[r] += column[r + shift]``: with a signed index numba's
+                        # scalar loop ran ~6x slower (not vectorised); same additions, same order
+                        line = acc[r_lo:r_hi]
+                        line[:] = 0.0
                         for j in range(1, length + 1):
                             column = columns[middle + side * (b + j)]
                             shift = sign * offsets[s, v, j]
-                            for r in range(r_lo, r_hi):
-                                acc[r] += column[r + shift]
-                        for r in range(r_lo, r_hi):
-                            cost = acc[r] + togo[r + move]
-                            if cost < new[r]:
-                                new[r] = cost
+                            line += column[r_lo + shift : r_hi + shift]
+                        ends = togo[r_lo + move : r_hi + move]
+                        kept = new[r_lo:r_hi]
+                        for r in range(r_hi - r_lo):
+                            cost = line[r] + ends[r]
+                            if cost < kept[r]:
+                                kept[r] = cost
                     togo[:] = new
                 for r in range(n_ref):
                     total[r] += togo[r]

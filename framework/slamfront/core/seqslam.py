@@ -312,7 +312,8 @@ def path_scores_block(
 
 def path_scores_reference(window: np.ndarray, segment: int, low: float, high: float, reverse: bool) -> np.ndarray:
     """:func:`path_scores_block` for one window (R, ds + 1), the same dynamic programme written
-    row by row in NumPy (the tests' oracle: slow)."""
+    row by row in NumPy (the tests' oracle: slow), adding in the kernel's order so the two agree
+    to the bit."""
     n_ref, width = window.shape
     ds = width - 1
     bounds = path_segments(ds, segment)
@@ -334,7 +335,10 @@ def path_scores_reference(window: np.ndarray, segment: int, low: float, high: fl
                         if not 0 <= end < n_ref or rows.min() < 0 or rows.max() >= n_ref:
                             continue
                         cols = half + side * (b + np.arange(1, length + 1))
-                        new[r] = min(new[r], window[rows, cols].sum() + togo[end])
+                        line = 0.0
+                        for value in window[rows, cols]:  # one after the other, as the kernel adds them
+                            line += float(value)
+                        new[r] = min(new[r], line + togo[end])
                 togo = new
             total += togo
         best = np.minimum(best, total)
