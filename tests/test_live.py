@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import socket
 import struct
 import subprocess
@@ -94,14 +95,24 @@ class Client(threading.Thread):
         said = message.get("message", "") if message.get("op") == "status" else ""
         self.timeline.append((time.monotonic() - self.started,
                               f"{message.get('op')} {len(message.get('channels', []))} {said}".strip()))
+        unknown = re.search(r"unknown channel:? *(\d+)", said)
+        if unknown and int(unknown.group(1)) in self.channels:
+            # seen once under heavy load: the SDK refused a subscription to a channel it had just
+            # advertised; a client (Foxglove too) asks again
+            time.sleep(0.05)
+            self._subscribe(ws, [int(unknown.group(1))])
         if message.get("op") != "advertise":
             return
-        subscriptions = []
         for channel in message["channels"]:
             self.channels[channel["id"]] = channel
+        self._subscribe(ws, [channel["id"] for channel in message["channels"]])
+
+    def _subscribe(self, ws: Any, channel_ids: list[int]) -> None:
+        subscriptions = []
+        for channel_id in channel_ids:
             subscription = len(self.by_subscription) + 1
-            self.by_subscription[subscription] = channel["id"]
-            subscriptions.append({"id": subscription, "channelId": channel["id"]})
+            self.by_subscription[subscription] = channel_id
+            subscriptions.append({"id": subscription, "channelId": channel_id})
         ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
 
 
