@@ -59,7 +59,7 @@ def selected(items: Sequence[T], config: RecordingConfig, positions: np.ndarray 
     """``items[start::step]``, resampled by distance when the config asks (``positions``:
     the camera centre of each item, (len(items), 3)), at most ``limit`` of them."""
     chosen = list(items[config.start :: config.step])
-    spacing = getattr(config, "resample_m", 0.0)
+    spacing = config.resample_m if isinstance(config, OdometryResampling) else 0.0
     if spacing > 0:
         if positions is None:
             raise ValueError("resample_m needs the frames' poses")

@@ -163,6 +163,7 @@ class RosBag(Source):
             self._connections(bag)
 
     def __len__(self) -> int:
+        # with resample_m, an upper bound: which frames the poses keep is known only by streaming them
         with self._open() as bag:
             return n_selected(self._connections(bag).image.msgcount, self.config)
 
