@@ -1,6 +1,7 @@
 """What every loop detector shares about its operating point: ``accept: auto`` (the default)
-or a fixed confidence, the ``AcceptThreshold`` message that logs it, and the bookkeeping
-of a calibration (the rule itself: :mod:`slamfront.core.operating_point`).
+or a fixed confidence, the bookkeeping
+of a calibration and the ``AcceptThreshold`` messages that log it (a shared message type,
+:mod:`slamfront.messages`; the rule itself: :mod:`slamfront.core.operating_point`).
 
 ``accept: auto`` never reads query ground truth. Paired traversals: the detector answers
 reference frames against the rest of the reference outside ``accept_exclusion_frames`` (every such
@@ -11,14 +12,13 @@ ones. The threshold: those wrong confidences' ``1 - false_accept_rate`` quantile
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from slamfront.core.operating_point import query_null_threshold, threshold_at_false_accept_rate
-from slamfront.messages import Message
+from slamfront.messages import AcceptThreshold, Message
 from slamfront.plugin import PluginConfig
 
 
@@ -72,24 +72,6 @@ class AcceptanceConfig(PluginConfig):
                 raise ValueError(f"give `accept` or its older name `{key}`, not both")
             data = {("accept" if k == key else k): v for k, v in data.items()}
         return data
-
-
-@dataclass(frozen=True, eq=False)
-class AcceptThreshold(Message):
-    """A loop detector's acceptance threshold: calibrated (``accept: auto``) or as given."""
-
-    schema_name: ClassVar[str] = "slamfront.AcceptThreshold"
-    detector: str
-    threshold: float
-    auto: bool
-    source: str
-    """``reference`` (against itself), ``stream`` (its first frames), ``queries`` (the queries'
-    leave-the-answer-out confidences, logged whenever they move the threshold) or ``given``."""
-    n_wrong: int
-    """Wrong answers the threshold was calibrated on (0 when given)."""
-    false_accept_rate: float
-    largest_wrong: float
-    """The most confident of them (NaN when given)."""
 
 
 class Acceptance:

@@ -44,7 +44,7 @@ from slamfront.message_codec import (
 )
 
 __all__ = [
-    "PLAIN_SUFFIX", "SHARED_MESSAGES", "Features", "FrameInfo", "LoopResult", "LoopTruth", "LoopVerdict", "Message",
+    "PLAIN_SUFFIX", "SHARED_MESSAGES", "AcceptThreshold", "Features", "FrameInfo", "LoopResult", "LoopTruth", "LoopVerdict", "Message",
     "PlaceAssignment", "PointCloud", "PoseGraphRecord", "RelativePose", "RunEvent", "RunMetrics", "StageStatistics",
     "Trajectory", "decode_any", "strip_optional",
 ]
@@ -329,8 +329,26 @@ class PoseGraphRecord:
         raise NotImplementedError
 
 
+@dataclass(frozen=True, eq=False)
+class AcceptThreshold(Message):
+    """A loop detector's acceptance threshold: calibrated (``accept: auto``) or as given."""
+
+    schema_name: ClassVar[str] = "slamfront.AcceptThreshold"
+    detector: str
+    threshold: float
+    auto: bool
+    source: str
+    """``reference`` (against itself), ``stream`` (its first frames), ``queries`` (the queries'
+    leave-the-answer-out confidences, logged whenever they move the threshold) or ``given``."""
+    n_wrong: int
+    """Wrong answers the threshold was calibrated on (0 when given)."""
+    false_accept_rate: float
+    largest_wrong: float
+    """The most confident of them (NaN when given)."""
+
+
 SHARED_MESSAGES: tuple[type[Message], ...] = (
     FrameInfo, Features, PlaceAssignment, LoopResult, RunMetrics, PointCloud, StageStatistics, RunEvent, LoopTruth,
-    RelativePose, Trajectory,
+    RelativePose, Trajectory, AcceptThreshold,
 )
 """The framework's own message types; plugins declare theirs with ``slamfront_message_types``."""

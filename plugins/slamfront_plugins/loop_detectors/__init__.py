@@ -15,12 +15,11 @@ def slamfront_loop_detectors() -> list[type]:
 
 @hookimpl
 def slamfront_message_types() -> list[type]:
-    from slamfront.acceptance import AcceptThreshold
     from slamfront_plugins.loop_detectors.bow_messages import BowStatistics
     from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision
     from slamfront_plugins.loop_detectors.hierarchical_records import SequenceDecision
 
-    return [AcceptThreshold, BowStatistics, SequenceDecision, FaithfulSequenceDecision]
+    return [BowStatistics, SequenceDecision, FaithfulSequenceDecision]
 
 
 @hookimpl
