@@ -271,3 +271,13 @@ def test_the_queries_own_wrong_answers_lower_a_threshold_the_reference_set_too_h
     out, n = _look_alike_reference(amount, accept_query_null=False)
     assert [m.source for m in out if isinstance(m, AcceptThreshold)] == ["reference"]
     assert not any(m.accepted for m in out if isinstance(m, LoopResult) and m.frame >= n)
+
+
+def test_the_headline_names_the_score_the_threshold_is_on():
+    from slamfront.report.headline import headline
+
+    metrics = {"recall_at_100p": 0.5, "auc_pr": 0.6, "precision_at_operating_point": 1.0,
+               "recall_at_operating_point": 0.4, "accept_threshold": 0.75, "accept_auto": 1, "n_accepted": 3}
+    assert "(confidence >= 0.75, calibrated)" in headline(metrics)[0]
+    # the bag of words calibrates its supported confidence, not the confidence its answers carry
+    assert "(supported confidence >= 0.75, calibrated)" in headline({**metrics, "accept_on_supported_confidence": 1})[0]

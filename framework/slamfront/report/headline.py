@@ -28,7 +28,8 @@ def headline(metrics: dict[str, Any]) -> list[str]:
             line += "; at the detector's operating point"
             if _number(m, "accept_threshold"):
                 how = "calibrated" if m.get("accept_auto") else "given"
-                line += f" (confidence >= {m['accept_threshold']:.3g}, {how})"
+                score = "supported confidence" if m.get("accept_on_supported_confidence") else "confidence"
+                line += f" ({score} >= {m['accept_threshold']:.3g}, {how})"
             if _number(m, "n_accepted"):
                 line += f" it accepts {m['n_accepted']} answers"
             if m.get("n_accepted") == 0:

@@ -817,6 +817,8 @@ class BowBayes(LoopDetector):
     def statistics(self) -> dict[str, float | int]:
         return {
             **self._acceptance.statistics(),
+            # accept: auto thresholds the supported confidence, not the confidence answers carry
+            "accept_on_supported_confidence": int(self._acceptance.auto),
             "n_searches": self._counts["searches"],
             "n_places_reference": len(self._places),
             "n_places_query": self._counts["queries"],
