@@ -57,3 +57,14 @@ def test_compare_refuses_two_recipes_with_one_name(cli, tmp_path: Path) -> None:
 def test_an_override_that_is_not_yaml_is_a_user_error(cli, tmp_path: Path) -> None:
     code, _, stderr = cli("compare", "demo", "--set", "k=[oops", "-o", tmp_path / "x", "-q")
     assert code == 2 and "--set 'k=[oops': value is not valid YAML" in stderr and "Traceback" not in stderr
+
+
+def test_compare_writes_nothing_into_a_folder_another_writer_holds(cli, tmp_path: Path) -> None:
+    from slamfront.outputs import folder_lock
+
+    out = tmp_path / "cmp"
+    with folder_lock(out, "run"):  # a run (or another compare) is writing there
+        code, _, stderr = cli("compare", *_recipes(tmp_path), "-o", out, "--workers", "1", "-q")
+    assert code == 2 and "Traceback" not in stderr and str(out) in stderr
+    # not even the comparison's sweep file: the holder's files are its own
+    assert not (out / "compare.yaml").exists() and not (out / "runs").exists()

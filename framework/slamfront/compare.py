@@ -23,9 +23,10 @@ import yaml
 from slamfront.campaign import run_campaign
 from slamfront.campaign.backends import Backend
 from slamfront.campaign.campaign import CampaignResult
+from slamfront.campaign.store import CampaignStore
 from slamfront.errors import RecipeError
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
-from slamfront.outputs import make_folder, write_atomically
+from slamfront.outputs import write_atomically
 from slamfront.recipe import find_recipe, parse_override, read_recipe_dict
 from slamfront.report import plots
 from slamfront.report.html import write_html
@@ -89,15 +90,16 @@ def compare(
     """Run every recipe (skipping those already finished in ``out_dir``) and write the report."""
     if not recipes:
         raise RecipeError("compare needs at least one recipe")
-    make_folder(out_dir)
-    sweep_path = out_dir / "compare.yaml"
-    write_atomically(sweep_path, yaml.safe_dump(comparison_sweep(recipes, overrides, out_dir.name), sort_keys=False))
-    campaign = run_campaign(
-        sweep_path, out_dir, backend, force=force, progress=progress, max_frames=max_frames
-    )
-    rows = json.loads(campaign.results_json.read_text())["runs"]
-    figures = _figures(rows, out_dir)
-    report = _write_report(rows, figures, out_dir)
+    store = CampaignStore(out_dir.resolve())
+    with store.locked():  # compare.yaml, the figures and the report too: one writer per folder
+        sweep_path = out_dir / "compare.yaml"
+        write_atomically(sweep_path, yaml.safe_dump(comparison_sweep(recipes, overrides, out_dir.name), sort_keys=False))
+        campaign = run_campaign(
+            sweep_path, out_dir, backend, force=force, progress=progress, max_frames=max_frames, held=store
+        )
+        rows = json.loads(campaign.results_json.read_text())["runs"]
+        figures = _figures(rows, out_dir)
+        report = _write_report(rows, figures, out_dir)
     return ComparisonResult(campaign, report, figures)
 
 

@@ -66,6 +66,7 @@ def run_campaign(
     progress: bool | None = None,
     max_frames: int | None = None,
     data_root: Path | None = None,
+    held: CampaignStore | None = None,
 ) -> CampaignResult:
     """Run every unfinished run of the sweep and write ``results.csv``, ``results.json``,
     ``report.md`` and the plots into ``out_dir`` (default: ``logs/sweeps/<sweep name>``).
@@ -73,11 +74,14 @@ def run_campaign(
     :param force: run again even the runs already finished in ``out_dir``.
     :param progress: show a progress bar (None: only on a terminal).
     :param data_root: the data root on the workers (default: theirs).
+    :param held: ``out_dir``'s store, whose lock the caller already holds (``compare``, which
+        writes into the folder before and after the campaign; a second lock would refuse it).
     :raises RecipeError: the sweep or one of its runs is invalid (nothing has run then).
     """
     sweep, runs = plan_campaign(sweep_path, max_frames)
-    out_dir = (out_dir or default_out_dir(sweep)).resolve()
-    store = CampaignStore(out_dir)
+    if held is not None:
+        return _run_locked(sweep_path, sweep, runs, held, backend, force, progress, data_root)
+    store = CampaignStore((out_dir or default_out_dir(sweep)).resolve())
     with store.locked():  # one campaign per folder at a time
         return _run_locked(sweep_path, sweep, runs, store, backend, force, progress, data_root)
 

@@ -44,9 +44,10 @@ class CampaignStore:
 
         :raises SlamfrontError: another process holds the lock.
         """
-        make_folder(self.runs_dir, "campaign folder")
+        make_folder(self.root, "campaign folder")
         with folder_lock(self.root, "campaign"):
             refuse_links(self.root)  # sweep.yaml, results.csv, report.md... are written there
+            make_folder(self.runs_dir, "campaign folder")  # only once the folder is ours
             yield
 
     def finished(self) -> dict[str, Path]:
