@@ -301,6 +301,7 @@ def _dusk_like(name: str, amount: float, **params: Any) -> tuple[list[Message], 
     traversals = ["reference"] * len(reference) + ["query"] * len(query)
     if name == "hierarchical_faithful":
         place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        params = {"accept_query_null": True, **params}  # off by default for the faithful preset
         return run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**params))), 300
     return _feed_global(NearestNeighbour(NearestNeighbour.Config(**params)), vectors, traversals, "l2"), 300
 
@@ -321,6 +322,9 @@ def test_the_queries_null_lowers_the_threshold_at_dusk_for_faithful_and_nearest_
     off, _ = _dusk_like(name, amount, accept_query_null=False)
     assert [m.source for m in off if isinstance(m, AcceptThreshold)] == ["reference"]
     assert len(accepted) > sum(1 for m in off if isinstance(m, LoopResult) and m.frame >= n and m.accepted)
+    if name == "hierarchical_faithful":  # its default: off
+        default, _ = _dusk_like(name, amount, accept_query_null=HierarchicalFaithful.Config().accept_query_null)
+        assert [m.source for m in default if isinstance(m, AcceptThreshold)] == ["reference"]
     # a fixed accept never moves
     fixed, _ = _dusk_like(name, amount, accept=0.5)
     assert [(m.source, m.threshold) for m in fixed if isinstance(m, AcceptThreshold)] == [("given", 0.5)]
