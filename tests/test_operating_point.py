@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from slamfront.acceptance import Acceptance, AcceptanceConfig, AcceptThreshold
-from slamfront.core.operating_point import query_null_threshold, threshold_at_false_accept_rate
+from slamfront.core.operating_point import query_null_threshold, query_shift_threshold, threshold_at_false_accept_rate
 from slamfront.frame import Frame
 from slamfront.messages import Features, LoopResult, Message
 from slamfront.plugin import StageInputs
@@ -57,6 +57,21 @@ def test_the_queries_null_only_lowers_the_threshold_to_its_own_quantile() -> Non
         before = fixed.threshold
         fixed.query_null(0.0, frames=1000)
         assert fixed.threshold == before and not fixed.wants_query_null
+
+
+def test_the_shift_rule_moves_the_reference_threshold_by_the_drop_of_the_median() -> None:
+    assert query_shift_threshold(0.7, 0.5, [0.40, 0.42, 0.44]) == pytest.approx(0.62)
+    assert query_shift_threshold(0.7, 0.5, [0.6, 0.7]) == 0.7  # never above the reference's
+    acceptance = Acceptance(AcceptanceConfig(accept_query_null_rule="shift", accept_query_null_frames=10), "d")
+    acceptance.calibrate([0.4, 0.5, 0.6], "reference")  # median 0.5
+    reference = acceptance.threshold
+    acceptance.query_null(0.1, frames=9)
+    assert acceptance.threshold == reference
+    acceptance.query_null(0.1, frames=1)  # median of the null 0.1: down by 0.4
+    assert acceptance.threshold == pytest.approx(reference - 0.4)
+    fixed = Acceptance(AcceptanceConfig(accept=0.3, accept_query_null_rule="shift"), "d")
+    fixed.query_null(0.0, frames=100)
+    assert fixed.threshold == 0.3
 
 
 # --- every detector, paired traversals ------------------------------------------------------
@@ -271,6 +286,48 @@ def test_the_queries_own_wrong_answers_lower_a_threshold_the_reference_set_too_h
     out, n = _look_alike_reference(amount, accept_query_null=False)
     assert [m.source for m in out if isinstance(m, AcceptThreshold)] == ["reference"]
     assert not any(m.accepted for m in out if isinstance(m, LoopResult) and m.frame >= n)
+
+
+def _dusk_like(name: str, amount: float, **params: Any) -> tuple[list[Message], int]:
+    """A route whose places share much of their look (less contrast than ``route_descriptors``),
+    seen again under a strong change (``amount``): every query answer, right or wrong, is less
+    confident than the reference's answers to itself, as at dusk. Returns the outputs and the
+    reference's length."""
+    rng = np.random.default_rng(0)
+    frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
+    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+    query = noisy(reference, amount, seed=4)
+    vectors = np.concatenate([reference, query])
+    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    if name == "hierarchical_faithful":
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        params = {"accept_query_null": True, **params}  # off by default for the faithful preset
+        return run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**params))), 300
+    return _feed_global(NearestNeighbour(NearestNeighbour.Config(**params)), vectors, traversals, "l2"), 300
+
+
+@pytest.mark.parametrize(("name", "amount"), [("hierarchical_faithful", 0.7), ("hierarchical_faithful", 0.8),
+                                              ("nearest_neighbour", 0.6)])
+def test_the_queries_null_lowers_the_threshold_at_dusk_for_faithful_and_nearest_neighbour(
+    name: str, amount: float
+) -> None:
+    out, n = _dusk_like(name, amount)
+    thresholds = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert thresholds[0].source == "reference"
+    moved = [m for m in thresholds if m.source == "queries"]
+    assert moved and all(m.threshold < thresholds[0].threshold for m in moved)  # down, never above
+    accepted = [m for m in out if isinstance(m, LoopResult) and m.frame >= n and m.accepted]
+    assert np.mean([abs(r.match - (r.frame - n)) <= 3 for r in accepted]) >= 0.95
+    # off: the reference's threshold alone accepts fewer
+    off, _ = _dusk_like(name, amount, accept_query_null=False)
+    assert [m.source for m in off if isinstance(m, AcceptThreshold)] == ["reference"]
+    assert len(accepted) > sum(1 for m in off if isinstance(m, LoopResult) and m.frame >= n and m.accepted)
+    if name == "hierarchical_faithful":  # its default: off
+        default, _ = _dusk_like(name, amount, accept_query_null=HierarchicalFaithful.Config().accept_query_null)
+        assert [m.source for m in default if isinstance(m, AcceptThreshold)] == ["reference"]
+    # a fixed accept never moves
+    fixed, _ = _dusk_like(name, amount, accept=0.5)
+    assert [(m.source, m.threshold) for m in fixed if isinstance(m, AcceptThreshold)] == [("given", 0.5)]
 
 
 def test_the_headline_names_the_score_the_threshold_is_on():

@@ -17,7 +17,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from slamfront.core.operating_point import query_null_threshold, threshold_at_false_accept_rate
+from slamfront.core.operating_point import query_null_threshold, query_shift_threshold, threshold_at_false_accept_rate
 from slamfront.messages import AcceptThreshold, Message
 from slamfront.plugin import PluginConfig
 
@@ -50,6 +50,12 @@ class AcceptanceConfig(PluginConfig):
         "to the same false_accept_rate of the queries' own leave-the-answer-out confidences (what the detector "
         "answers with the answered stretch of the map left out: wrong by construction, under the queries' "
         "appearance), once there are accept_query_null_frames of them; never above the reference's threshold"
+    )
+    accept_query_null_rule: Literal["quantile", "shift"] = Field(
+        "quantile", description="accept_query_null: quantile: the threshold is the false_accept_rate quantile of "
+        "the queries' null; shift: the reference's threshold moved by the queries' null's median minus the "
+        "median of the reference's wrong answers (the reference's well-sampled tail, the queries' location: for "
+        "detectors whose answers are judged a sequence at a time, where a few null values underestimate the tail)"
     )
     accept_query_null_frames: int = Field(
         50, ge=1, description="accept_query_null: query frames with a leave-the-answer-out confidence needed "
@@ -90,6 +96,7 @@ class Acceptance:
         self._stream_wrong: list[float] = []
         self._null: list[float] = []  # the queries' leave-the-answer-out confidences (one per query frame)
         self.reference_threshold: float | None = None
+        self._reference_median: float | None = None  # of the reference's wrong confidences (the shift rule)
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
         if not self.auto:
@@ -112,6 +119,7 @@ class Acceptance:
         self.n_wrong = len(values)
         if source == "reference":
             self.reference_threshold = self._logged = self.threshold
+            self._reference_median = float(np.median(values)) if len(values) else None
         self._outbox.append(AcceptThreshold(
             self._detector, self.threshold, True, source, len(values), rate,
             float(values.max()) if len(values) else float("nan"),
@@ -128,14 +136,21 @@ class Acceptance:
         stretch of the map left out: wrong by construction), for ``frames`` query frames.
         With ``accept_query_null`` and a calibrated reference threshold, once there are
         ``accept_query_null_frames`` of them the threshold is the smaller of the reference's and
-        the same ``false_accept_rate`` quantile of these (:func:`query_null_threshold`): it moves
-        down only as far as wrong answers under the queries' own appearance allow."""
+        the same ``false_accept_rate`` quantile of these (:func:`query_null_threshold`), or with
+        ``accept_query_null_rule: shift`` the reference's moved down by how much lower their median
+        is (:func:`query_shift_threshold`): it moves down only as far as wrong answers under the
+        queries' own appearance allow."""
         if not self.wants_query_null or not np.isfinite(confidence):
             return
         self._null.extend([float(confidence)] * frames)
         if len(self._null) < self._config.accept_query_null_frames:
             return
-        threshold = query_null_threshold(self.reference_threshold, self._null, self._config.false_accept_rate)
+        if self._config.accept_query_null_rule == "shift":
+            if self._reference_median is None:
+                return
+            threshold = query_shift_threshold(self.reference_threshold, self._reference_median, self._null)
+        else:
+            threshold = query_null_threshold(self.reference_threshold, self._null, self._config.false_accept_rate)
         self.threshold = threshold
         if abs(threshold - self._logged) > 0.005:  # log it when it first moves, and each time it moves again
             self._logged = threshold

@@ -51,6 +51,19 @@ def query_null_threshold(reference: float, null: np.ndarray | list[float], rate:
     return min(float(reference), threshold_at_false_accept_rate(np.asarray(null, dtype=np.float64), rate))
 
 
+def query_shift_threshold(reference: float, reference_median: float, null: np.ndarray | list[float]) -> float:
+    """The threshold under the queries' own appearance, by a shift: ``reference`` (the
+    threshold from the reference against itself) moved by ``median(null) - reference_median``
+    (``reference_median``: the median of the reference's wrong confidences), never above
+    ``reference``. It takes the tail's shape from the reference's many wrong answers and only
+    their location from the queries' leave-the-answer-out confidences: a median is sound from
+    a few dozen values, where their largest (:func:`query_null_threshold` at a small rate)
+    still underestimates the tail, which matters when one value stands for a whole sequence
+    of answers."""
+    return min(float(reference), float(reference) + float(np.median(np.asarray(null, dtype=np.float64)))
+               - float(reference_median))
+
+
 def exclusion_window(n: int, frames: int) -> int:
     """The temporal exclusion window for a traversal of ``n`` frames: ``frames``, but at most a
     tenth of the traversal (at least 1), so a short reference (a room's 111 frames) keeps

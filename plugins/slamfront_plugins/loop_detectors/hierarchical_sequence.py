@@ -44,7 +44,6 @@ from pydantic import Field, model_validator
 
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
-from slamfront.core.operating_point import exclusion_window
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
     Cone,
@@ -376,24 +375,13 @@ class HierarchicalSequence(PlaceSequenceDetector):
         c = self.config
         if not len(rows):
             return
-        pm = self.place_map
-        offsets = pm.place_offsets()
-        window = exclusion_window(n_map, c.accept_exclusion_frames)
+        offsets = self.place_map.place_offsets()
         answered = compared[0][0].at(rows).astype(np.int64)
-        first = max(0, int(np.searchsorted(offsets, int(answered.min()) - window, side="right")) - 1)
-        last = int(np.searchsorted(offsets, int(answered.max()) + window, side="right")) - 1
-        vector = pm.representatives([place])[0]
-        found: list[tuple[np.ndarray, np.ndarray]] = []
-        searched, computed = pm.search_distances, self._pairs.computed
-        for lo, hi in ((0, first - 1), (last + 1, usable - 1)):
-            if lo <= hi:
-                found.append(pm.nearest(vector, c.psi, lo=lo, hi=hi))
-        self._query_null_distances[0] += pm.search_distances - searched
-        if not found:
+        computed = self._pairs.computed
+        left_out = self._search_left_out(place, answered, n_map, usable)
+        if left_out is None:
             return
-        hits = np.concatenate([np.asarray(h, dtype=np.int64) for h, _ in found])
-        near = np.concatenate([np.asarray(d, dtype=np.float64) for _, d in found])
-        hits = hits[np.argsort(near, kind="stable")][: c.psi]
+        hits, window = left_out
         trajectories = compare_candidates(
             self._pairs, [(anchor, int(offsets[h]), int(h)) for h in hits], rows, n_map, map_informative,
             velocities=velocities, slack=c.anchor_slack, refine=c.refine, screen_frames=c.screen_frames,

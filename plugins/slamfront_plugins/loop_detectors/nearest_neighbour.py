@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -46,6 +47,10 @@ class NearestNeighbour(LoopDetector):
             "through: precision 0.915)"
         )
 
+        accept_query_null_rule: Literal["quantile", "shift"] = Field(
+            "shift", description="accept_query_null (acceptance.py): shift; the quantile rule (the largest null "
+            "value at false_accept_rate 0) let wrong answers through on Nordland chunks (docs/loop_closure.md)"
+        )
         uniqueness_window: int = Field(10, ge=0, description="frames around the best match ignored for d_second")
         exclude_recent: int = Field(50, ge=0, description="stream mode: skip this many most recent frames")
         candidates: int = Field(10, ge=1, description="ranked candidates reported per query (recall@K)")
@@ -122,9 +127,9 @@ class NearestNeighbour(LoopDetector):
         distances = to_one(vector, self._vectors.view[:usable], self._metric)  # type: ignore[arg-type]
         order = smallest(distances, self.config.candidates)  # the stable sort's first ranks, without sorting all
         best = int(order[0])
-        far = np.abs(np.arange(usable) - best) > self.config.uniqueness_window
-        second = float(distances[far].min()) if far.any() else float(distances[best]) * 2 + 1e-9
-        confidence = float(np.clip(1.0 - distances[best] / max(second, 1e-12), 0.0, 1.0))
+        confidence = self._uniqueness(distances, best)
+        if not stream and self._acceptance.wants_query_null:
+            self._leave_answer_out(distances, best)
         frames = np.asarray(self._frames[:usable], dtype=np.int64)
         return LoopResult(
             frame=frame,
@@ -133,6 +138,25 @@ class NearestNeighbour(LoopDetector):
             accepted=False,  # decided by the operating point
             candidates=frames[order[: self.config.candidates]],
         )
+
+    def _uniqueness(self, distances: np.ndarray, best: int) -> float:
+        """``1 - d_best / d_second``, ``d_second`` the best distance more than ``uniqueness_window``
+        frames from the best (+inf: not a candidate)."""
+        far = np.abs(np.arange(len(distances)) - best) > self.config.uniqueness_window
+        second = float(distances[far].min()) if far.any() else np.inf
+        if not np.isfinite(second):
+            second = float(distances[best]) * 2 + 1e-9
+        return float(np.clip(1.0 - distances[best] / max(second, 1e-12), 0.0, 1.0))
+
+    def _leave_answer_out(self, distances: np.ndarray, best: int) -> None:
+        """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`): the
+        best match outside the exclusion window (``accept_exclusion_frames``) around the answer, and
+        its confidence by the same uniqueness rule; wrong by construction. No extra distance."""
+        window = exclusion_window(len(self._frames), self.config.accept_exclusion_frames)
+        masked = np.where(np.abs(np.arange(len(distances)) - best) <= window, np.inf, distances)
+        if not np.isfinite(masked).any():
+            return
+        self._acceptance.query_null(self._uniqueness(masked, int(np.argmin(masked))))
 
     def statistics(self) -> dict[str, float | int]:
         return {

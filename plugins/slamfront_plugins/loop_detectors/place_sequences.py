@@ -232,6 +232,32 @@ class PlaceSequenceDetector(LoopDetector):
         hits, _ = pm.nearest(pm.representatives([place])[0], self.config.psi, lo=lo, hi=usable - 1)
         return np.asarray(hits, dtype=np.int64)
 
+    def _search_left_out(self, place: int, answered: np.ndarray, n_map: int, usable: int,
+                         lead: int = 0) -> tuple[np.ndarray, int] | None:
+        """Level 1 for accept: auto's queries' null (:meth:`Acceptance.query_null`): the psi map
+        places nearest to the place's representative, nearest first, with the map places within
+        the exclusion window (``accept_exclusion_frames`` of ``n_map`` frames) of the ``answered``
+        map-frame positions left out; a hit needs ``lead`` places before it on its own side (a
+        sequence ending there stays clear). Returns ``(hits, window)``, or None when nothing is
+        left; its distances count as the null's."""
+        pm = self.place_map
+        offsets = pm.place_offsets()
+        window = exclusion_window(n_map, self.config.accept_exclusion_frames)
+        first = max(0, int(np.searchsorted(offsets, int(answered.min()) - window, side="right")) - 1)
+        last = int(np.searchsorted(offsets, int(answered.max()) + window, side="right")) - 1
+        vector = pm.representatives([place])[0]
+        found: list[tuple[np.ndarray, np.ndarray]] = []
+        searched = pm.search_distances
+        for lo, hi in ((lead, first - 1), (last + 1 + lead, usable - 1)):
+            if lo <= hi:
+                found.append(pm.nearest(vector, self.config.psi, lo=lo, hi=hi))
+        self._query_null_distances[0] += pm.search_distances - searched
+        if not found:
+            return None
+        hits = np.concatenate([np.asarray(h, dtype=np.int64) for h, _ in found])
+        near = np.concatenate([np.asarray(d, dtype=np.float64) for _, d in found])
+        return hits[np.argsort(near, kind="stable")][: self.config.psi], window
+
     # --- answers and bookkeeping -------------------------------------------------------------
 
     def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray) -> LoopResult:
