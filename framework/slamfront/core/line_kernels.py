@@ -140,20 +140,23 @@ def line_costs(table, owner, state, rows, anchor_query, anchor_map, shifts, velo
     for v in range(n_speeds):
         for r in range(n_rows):
             steps[v, r] = np.int64(np.floor(np.float64(rows[r] - anchor_query) * velocities[v] + 0.5))
-    # pass 1: pairs per line, and which rows any line with enough pairs compares
+    # pass 1: which pairs each line has inside the map, on informative map frames, how many;
+    # and which rows any line with enough pairs compares
+    inside = np.zeros((n_shifts, n_speeds, n_rows), dtype=np.bool_)
     asked = np.zeros(n_rows, dtype=np.bool_)
     for s in range(n_shifts):
+        base = anchor_map + shifts[s]
         for v in range(n_speeds):
             count = 0
             for r in range(n_rows):
-                m = anchor_map + shifts[s] + steps[v, r]
+                m = base + steps[v, r]
                 if 0 <= m < n_map and map_informative[m]:
+                    inside[s, v, r] = True
                     count += 1
             counts[s, v] = count
             if count >= need:
                 for r in range(n_rows):
-                    m = anchor_map + shifts[s] + steps[v, r]
-                    if 0 <= m < n_map and map_informative[m]:
+                    if inside[s, v, r]:
                         asked[r] = True
     lowest = np.int64(-1)
     highest = np.int64(-1)
@@ -170,13 +173,13 @@ def line_costs(table, owner, state, rows, anchor_query, anchor_map, shifts, velo
         return highest - lowest + 1
     # rows that hold another position, or one older than the newest minus keep, are cleared
     newest = state[0]
+    slots = np.empty(n_rows, dtype=np.int64)
     for r in range(n_rows):
-        if asked[r]:
-            t = rows[r]
-            row = t % keep
-            if owner[row] != t or t <= newest - keep:
-                table[row, :] = np.nan
-                owner[row] = t
+        t = rows[r]
+        slots[r] = t % keep
+        if asked[r] and (owner[slots[r]] != t or t <= newest - keep):
+            table[slots[r], :] = np.nan
+            owner[slots[r]] = t
     state[0] = max(newest, highest)
     # pass 2: each line's entries (its distances, computed when missing), summed as NumPy sums
     values = np.empty(n_rows, dtype=np.float64)
@@ -186,18 +189,18 @@ def line_costs(table, owner, state, rows, anchor_query, anchor_map, shifts, velo
     partial64 = np.empty(64, dtype=np.float64)
     computed = 0
     for s in range(n_shifts):
+        base = anchor_map + shifts[s]
         for v in range(n_speeds):
             if counts[s, v] < need:
                 costs[s, v] = np.inf
                 continue
             for r in range(n_rows):
-                m = anchor_map + shifts[s] + steps[v, r]
-                if 0 <= m < n_map and map_informative[m]:
-                    t = rows[r]
-                    value = table[t % keep, m]
+                if inside[s, v, r]:
+                    m = base + steps[v, r]
+                    value = table[slots[r], m]
                     if np.isnan(value):
-                        value = pairwise_l1(vectors[query_rows[t]], vectors[map_rows[m]], frames, partial)
-                        table[t % keep, m] = value
+                        value = pairwise_l1(vectors[query_rows[rows[r]]], vectors[map_rows[m]], frames, partial)
+                        table[slots[r], m] = value
                         computed += 1
                     values[r] = np.float64(value)
                 else:

@@ -181,14 +181,14 @@ def cone_trajectory(
         anchor_map = anchors[0] if sign > 0 else anchors[1]
         velocities = sign * cone_speeds(cone.low, cone.high, lengths[0], False)
         found += _lines(distances, rows[-lengths[0]:], anchor_query, anchor_map, shifts, velocities, n_map,
-                        map_informative)
+                        map_informative, cone.keep)
     for coarse, fine in zip(lengths[:-1], lengths[1:]):
         kept = sorted(found, key=lambda t: t.cost)[: cone.keep]
         found = []
         for line in kept:
             velocities = refined_speeds(line.speed, coarse, fine, cone.low, cone.high)
             found += _lines(distances, rows[-fine:], anchor_query, line.anchor_map, np.arange(-1, 2), velocities,
-                            n_map, map_informative)
+                            n_map, map_informative, cone.keep)
     return min(found, key=lambda t: t.cost) if found else None
 
 
@@ -201,13 +201,23 @@ def _lines(
     velocities: np.ndarray,
     n_map: int,
     map_informative: np.ndarray | None,
+    limit: int,
 ) -> list[Trajectory]:
-    """Every line through the anchor's shifts and speeds that fits in the map, scored (one lookup)."""
+    """The ``limit`` lowest-cost lines through the anchor's shifts and speeds that fit in the
+    map (ties: shift, then speed order), in shift-then-speed order (one lookup).
+
+    The caller keeps the ``limit`` lowest of several calls' lines with a stable sort (and
+    the lowest one): the ``limit`` lowest of each call hold them, in the same order, so the
+    rest are not made into trajectories at all."""
     costs, counts = trajectory_costs(distances, rows, anchor_query, anchor_map, shifts, velocities, n_map,
                                      map_informative)
-    return [Trajectory(cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
+    flat = costs.ravel()
+    fitting = np.flatnonzero(np.isfinite(flat))
+    if len(fitting) > limit:
+        fitting = np.sort(fitting[np.argsort(flat[fitting], kind="stable")[:limit]])
+    return [Trajectory(cost=float(flat[k]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
                        speed=float(velocities[v]), rows=int(counts[s, v]))
-            for s, v in zip(*np.nonzero(np.isfinite(costs)))]
+            for k, (s, v) in zip(fitting.tolist(), zip(*np.divmod(fitting, costs.shape[1])))]
 
 
 def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> float:
