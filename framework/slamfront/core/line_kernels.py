@@ -91,7 +91,10 @@ def block_l1(x, y, start, n):  # type: ignore[no-untyped-def]
 @jit
 def pairwise_l1(x, y, frames, partial):  # type: ignore[no-untyped-def]
     # float32 sum of |x - y| in NumPy's pairwise order (compiled_kernels.pairwise_sum's tree,
-    # on an explicit stack), plus the reduction's initial 0 as np.sum adds it
+    # on an explicit stack), plus the reduction's initial 0 as np.sum adds it. The walk repeats
+    # pairwise_sum's rather than taking the block function as an argument: numba does not
+    # cache a kernel that passes a function, and pairwise_sum's own blocks (behind SeqSLAM's
+    # difference matrix) are left as they are
     n = x.shape[0]
     if n <= PAIRWISE_BLOCK:
         return np.float32(0.0) + block_l1(x, y, 0, n)

@@ -84,12 +84,8 @@ class FlatPlaceMap(PlaceMap):
         return self._vectors.view[np.asarray(frames, dtype=np.int64)]  # type: ignore[union-attr]
 
     def frame_vectors(self) -> np.ndarray:
-        """(N, D) descriptors of every frame so far, row = frame index (a view: read it, do not
-        keep it across frames). Optional beyond :class:`slamfront.SearchablePlaceMap`: a detector
-        that finds it reads descriptors in place instead of gathering copies."""
-        if self._vectors is None:
-            return np.empty((0, 0), dtype=np.float32)
-        return self._vectors.view
+        """As the hierarchical place map's: every frame's descriptor, row = frame index (a view)."""
+        return np.empty((0, 0), dtype=np.float32) if self._vectors is None else self._vectors.view
 
     def informative(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         return self._informative.view[np.asarray(frames, dtype=np.int64), 0]
