@@ -192,7 +192,8 @@ def patched(name: str) -> Iterator[None]:
                                                                                      window, *rest)
 
     changes: dict[str, tuple[object, str, object]] = {
-        "keep_x2": (sequence, "PairDistances", lambda compute, keep: frames.PairDistances(compute, 2 * keep)),
+        "keep_x2": (sequence, "PairDistances",
+                    lambda compute, keep, **kw: frames.PairDistances(compute, 2 * keep, **kw)),
         "inside_all": (frames, "MIN_INSIDE", 1.0),
         "inside_quarter": (frames, "MIN_INSIDE", 0.25),
         "own_never": (detector, "_reaches_back", lambda self, waiting, record: False),

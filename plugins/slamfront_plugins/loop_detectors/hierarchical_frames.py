@@ -22,17 +22,18 @@ candidates (the search-space reduction) and compares each candidate frame by fra
 Positions are counted in the detector's own order: query position ``t`` is the t-th
 query frame it has seen, map-frame position ``m`` the m-th frame of the place map in map
 order. Every distance is computed once while its query frame is recent
-(:class:`PairDistances`), and counted.
+(:class:`slamfront.core.line_costs.PairDistances`, which scores the lines through an anchor
+in one compiled step), and counted.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from slamfront.core.line_costs import PairDistances
 from slamfront.core.sequences import coarse_to_fine_lengths, cone_speeds, refined_speeds
 
 MIN_INSIDE = 0.5
@@ -72,71 +73,6 @@ def speeds(vmin: float, vmax: float, length: int) -> np.ndarray:
     return np.unique(np.round(values, 9))
 
 
-class PairDistances:
-    """Distances between query positions and map-frame positions, each computed once.
-
-    A table of ``keep`` rows, query position ``t`` in row ``t % keep``, one column per
-    map-frame position (grown as the map grows), NaN where not computed yet: a lookup of
-    any number of pairs is one fancy-indexing step, whatever the positions.
-
-    :param compute: ``(t, m) -> (n,)`` distances between the query positions ``t[i]``
-        and the map-frame positions ``m[i]`` (arrays of the same length); called once per
-        :meth:`get` with every pair not computed before, so its overhead is paid once.
-    :param keep: query positions older than the newest minus ``keep`` are forgotten.
-    """
-
-    def __init__(self, compute: Callable[[np.ndarray, np.ndarray], np.ndarray], keep: int) -> None:
-        self._compute = compute
-        self._keep = keep
-        self._table = np.full((keep, 0), np.nan, dtype=np.float32)
-        self._owner = np.full(keep, -1, dtype=np.int64)  # the query position each row holds
-        self._newest = -1
-        self.computed = 0
-        """Distances computed so far (each pair once)."""
-
-    def get(self, t: np.ndarray, m: np.ndarray) -> np.ndarray:
-        """(n,) float64 distances for the pairs ``(t[i], m[i])``; m must be >= 0."""
-        t = np.asarray(t, dtype=np.int64)
-        m = np.asarray(m, dtype=np.int64)
-        if not len(t):
-            return np.empty(0, dtype=np.float64)
-        positions = np.unique(t)
-        if positions[-1] - positions[0] >= self._keep:  # one lookup spans more than the table
-            self._resize(int(positions[-1] - positions[0]) + 1)
-        width = int(m.max()) + 1
-        if width > self._table.shape[1]:
-            grown = np.full((self._keep, max(width, 2 * self._table.shape[1])), np.nan, dtype=np.float32)
-            grown[:, : self._table.shape[1]] = self._table
-            self._table = grown
-        rows = positions % self._keep
-        # a row is reused when it holds another position, or one older than the newest minus keep
-        stale = (self._owner[rows] != positions) | (positions <= self._newest - self._keep)
-        self._table[rows[stale]] = np.nan
-        self._owner[rows[stale]] = positions[stale]
-        self._newest = max(self._newest, int(positions[-1]))
-        slot = t % self._keep
-        values = self._table[slot, m]
-        missing = np.isnan(values)
-        if missing.any():
-            columns = self._table.shape[1]
-            keys = np.unique(t[missing] * columns + m[missing])  # each pair once
-            pair_t, pair_m = keys // columns, keys % columns
-            self._table[pair_t % self._keep, pair_m] = np.asarray(self._compute(pair_t, pair_m), dtype=np.float32)
-            self.computed += len(keys)
-            values = self._table[slot, m]
-        return values.astype(np.float64)
-
-    def _resize(self, keep: int) -> None:
-        """Room for ``keep`` positions, keeping the rows still valid."""
-        table = np.full((keep, self._table.shape[1]), np.nan, dtype=np.float32)
-        owner = np.full(keep, -1, dtype=np.int64)
-        for row, position in enumerate(self._owner.tolist()):
-            if position >= 0 and position > self._newest - self._keep:
-                table[position % keep] = self._table[row]
-                owner[position % keep] = position
-        self._table, self._owner, self._keep = table, owner, keep
-
-
 def trajectory_costs(
     distances: PairDistances,
     rows: np.ndarray,
@@ -158,20 +94,8 @@ def trajectory_costs(
     :returns: (S, V) costs, inf where fewer than :data:`MIN_INSIDE` of the rows stay inside
         the map on an informative frame; (S, V) the number of rows each cost is over.
     """
-    steps = np.floor((rows[None, :] - anchor_query) * velocities[:, None] + 0.5).astype(np.int64)  # (V, R)
-    positions = anchor_map + shifts[:, None, None] + steps[None, :, :]  # (S, V, R)
-    inside = (positions >= 0) & (positions < n_map)
-    if map_informative is not None:
-        inside[inside] = map_informative[positions[inside]]
-    counts = inside.sum(axis=2)
-    enough = counts >= max(1, math.ceil(len(rows) * MIN_INSIDE))
-    costs = np.full(counts.shape, np.inf)
-    if enough.any():
-        values = np.zeros(positions.shape, dtype=np.float64)
-        pairs = inside & enough[:, :, None]
-        values[pairs] = distances.get(np.broadcast_to(rows, positions.shape)[pairs], positions[pairs])
-        costs[enough] = values.sum(axis=2)[enough] / counts[enough]
-    return costs, counts
+    return distances.line_costs(rows, anchor_query, anchor_map, shifts, velocities, n_map, map_informative,
+                                max(1, math.ceil(len(rows) * MIN_INSIDE)))
 
 
 def best_trajectory(
@@ -257,14 +181,14 @@ def cone_trajectory(
         anchor_map = anchors[0] if sign > 0 else anchors[1]
         velocities = sign * cone_speeds(cone.low, cone.high, lengths[0], False)
         found += _lines(distances, rows[-lengths[0]:], anchor_query, anchor_map, shifts, velocities, n_map,
-                        map_informative)
+                        map_informative, cone.keep)
     for coarse, fine in zip(lengths[:-1], lengths[1:]):
         kept = sorted(found, key=lambda t: t.cost)[: cone.keep]
         found = []
         for line in kept:
             velocities = refined_speeds(line.speed, coarse, fine, cone.low, cone.high)
             found += _lines(distances, rows[-fine:], anchor_query, line.anchor_map, np.arange(-1, 2), velocities,
-                            n_map, map_informative)
+                            n_map, map_informative, cone.keep)
     return min(found, key=lambda t: t.cost) if found else None
 
 
@@ -277,13 +201,23 @@ def _lines(
     velocities: np.ndarray,
     n_map: int,
     map_informative: np.ndarray | None,
+    limit: int,
 ) -> list[Trajectory]:
-    """Every line through the anchor's shifts and speeds that fits in the map, scored (one lookup)."""
+    """The ``limit`` lowest-cost lines through the anchor's shifts and speeds that fit in the
+    map (ties: shift, then speed order), in shift-then-speed order (one lookup).
+
+    The caller keeps the ``limit`` lowest of several calls' lines with a stable sort (and
+    the lowest one): the ``limit`` lowest of each call hold them, in the same order, so the
+    rest are not made into trajectories at all."""
     costs, counts = trajectory_costs(distances, rows, anchor_query, anchor_map, shifts, velocities, n_map,
                                      map_informative)
-    return [Trajectory(cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
+    flat = costs.ravel()
+    fitting = np.flatnonzero(np.isfinite(flat))
+    if len(fitting) > limit:
+        fitting = np.sort(fitting[np.argsort(flat[fitting], kind="stable")[:limit]])
+    return [Trajectory(cost=float(flat[k]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
                        speed=float(velocities[v]), rows=int(counts[s, v]))
-            for s, v in zip(*np.nonzero(np.isfinite(costs)))]
+            for k, (s, v) in zip(fitting.tolist(), zip(*np.divmod(fitting, costs.shape[1])))]
 
 
 def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> float:

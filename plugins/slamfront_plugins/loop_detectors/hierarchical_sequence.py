@@ -44,6 +44,7 @@ from pydantic import Field, model_validator
 
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import rowwise
+from slamfront.core.line_costs import DescriptorRows
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
     Cone,
@@ -216,9 +217,11 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._order: list[int] = []  # query frames by query position
         self._position: dict[int, int] = {}
         self._informative = GrowingRows(1, dtype=bool)  # per query position: not featureless
+        self._position_frames = GrowingRows(1, dtype=np.int64)  # per query position: its frame (as _order)
         # per map-frame position: not featureless; grown as the map grows (map frames only
         # ever append), so an iteration reads it without gathering the whole map again
         self._map_informative = GrowingRows(1, dtype=bool)
+        self._map_frames = GrowingRows(1, dtype=np.int64)  # per map-frame position: its frame, grown alike
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
         self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
                           c.cone_keep) if c.speed_search == "cone" else None
@@ -229,7 +232,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._lost = c.cone_after  # inconsistent answers in a row (none yet: search the whole cone)
         self._wide = True  # searching the whole cone until a run settles
         # the cache keeps 4 windows of query positions: memory only (8 gives the same answers and distances)
-        self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames)
+        self._pairs = PairDistances(self._pair_distances, keep=4 * c.sequence_frames, descriptors=self._descriptor_rows)
         self._track: tuple[Trajectory, int] | None = None  # the last answer and the query position it ended at
         self._waiting: _Answer | None = None  # the last sequence, answered when the next one is compared
         self._run: list[float] = []  # confidences of the current run of consistent sequences
@@ -252,6 +255,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             self._moved = True
         self._position[frame] = len(self._order)
         self._order.append(frame)
+        self._position_frames.append(np.array([frame]))
         self._informative.append(informative)
 
     def _stationary(self, frame: int, informative: bool) -> bool:
@@ -299,6 +303,16 @@ class HierarchicalSequence(PlaceSequenceDetector):
         pm = self.place_map
         frames = [self._order[p] for p in positions.tolist()]
         return rowwise(pm.vectors(frames), pm.vectors(pm.map_frames_at(map_positions)), pm.metric)  # type: ignore[arg-type]
+
+    def _descriptor_rows(self) -> DescriptorRows | None:
+        """Where the compared descriptors are, for the compiled line scoring: the place map's
+        frame descriptors when it shares them (``frame_vectors``; None: through
+        :meth:`_pair_distances`, the same distances)."""
+        frame_vectors = getattr(self.place_map, "frame_vectors", None)
+        if frame_vectors is None:
+            return None
+        return DescriptorRows(frame_vectors(), self._position_frames.view[:, 0], self._map_frames.view[:, 0],
+                              self.place_map.metric)
 
     def _sequence_distances(self) -> int:
         return self._pairs.computed
@@ -489,8 +503,10 @@ class HierarchicalSequence(PlaceSequenceDetector):
         known = len(self._map_informative)
         if n_map > known:
             pm = self.place_map
-            for flag in pm.informative(pm.map_frames_at(np.arange(known, n_map))):
+            frames = pm.map_frames_at(np.arange(known, n_map))
+            for frame, flag in zip(frames.tolist(), pm.informative(frames)):
                 self._map_informative.append(np.array([flag]))
+                self._map_frames.append(np.array([frame]))
         return self._map_informative.view[:n_map, 0]
 
     # --- level 3 --------------------------------------------------------------------------

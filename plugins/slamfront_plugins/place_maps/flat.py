@@ -83,6 +83,10 @@ class FlatPlaceMap(PlaceMap):
     def vectors(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         return self._vectors.view[np.asarray(frames, dtype=np.int64)]  # type: ignore[union-attr]
 
+    def frame_vectors(self) -> np.ndarray:
+        """As the hierarchical place map's: every frame's descriptor, row = frame index (a view)."""
+        return np.empty((0, 0), dtype=np.float32) if self._vectors is None else self._vectors.view
+
     def informative(self, frames: Sequence[int] | np.ndarray) -> np.ndarray:
         return self._informative.view[np.asarray(frames, dtype=np.int64), 0]
 

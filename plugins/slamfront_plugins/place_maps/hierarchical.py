@@ -353,6 +353,14 @@ class HierarchicalPlaceMap(PlaceMap):
         """(n, D) descriptors of frames (by frame index)."""
         return self._vectors.view[np.asarray(frames, dtype=np.int64)]  # type: ignore[union-attr]
 
+    def frame_vectors(self) -> np.ndarray:
+        """(N, D) descriptors of every frame so far, row = frame index (a view: read it, do not
+        keep it across frames). Optional beyond :class:`slamfront.SearchablePlaceMap`: a detector
+        that finds it reads descriptors in place instead of gathering copies."""
+        if self._vectors is None:
+            return np.empty((0, 0), dtype=np.float32)
+        return self._vectors.view
+
     def representative(self, place_id: int) -> np.ndarray:
         """R(P): the place's first descriptor."""
         return self._vectors.view[self.places[place_id].representative_frame]  # type: ignore[union-attr]

@@ -1,0 +1,213 @@
+"""The numba kernel behind :meth:`slamfront.core.line_costs.PairDistances.line_costs`:
+every straight line through one anchor scored in one call, the descriptor distances it
+needs computed (once, into the caller's table) on the way.
+
+A module of its own so that numba's on-disk cache of :mod:`slamfront.core.compiled_kernels`
+stays valid. The arithmetic repeats the NumPy reference
+(:func:`slamfront.core.line_costs.line_costs_reference`) operation for operation:
+
+- a descriptor distance is ``rowwise``'s float32 L1, ``|x - y|`` summed in NumPy's pairwise
+  order (:func:`pairwise_l1`, the same tree as
+  :func:`slamfront.core.compiled_kernels.pairwise_sum`, with the absolute differences taken
+  on the fly instead of from a buffer, and a block's 8 running sums kept in one 8-wide
+  vector: :func:`lane_sums_l1`);
+- a line's cost is the float64 sum, in NumPy's pairwise order, of its R entries (0 where
+  the line leaves the map or meets a featureless map frame), divided by its pair count.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from slamfront.core.compiled_kernels import pairwise_sum
+from slamfront.core.kernels import PAIRWISE_BLOCK
+
+jit = numba.njit(nogil=True, cache=True, error_model="numpy")
+_U = np.uint64  # unsigned indices: numba skips the negative-index wraparound, which kept the loops slow
+
+
+@intrinsic
+def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
+    # The 8 running sums of NumPy's pairwise block over [start, stop) (a multiple of 8
+    # values, at least 8): lane k adds |x[i] - y[i]| for i = start + k, start + k + 8, ...,
+    # one after the other from the first, as r0..r7 of compiled_kernels.block_sum do. One
+    # 8-wide vector add per step (lane-wise IEEE adds, so the same bits as 8 scalar sums):
+    # numba's loops left the 8 sums scalar. uint8 values are widened to float32 first, as
+    # ``a.astype(np.float32) - b`` does.
+    if not (isinstance(x, types.Array) and x == y and x.ndim == 1 and x.layout == "C"
+            and x.dtype in (types.float32, types.uint8)):
+        return None
+    signature = types.UniTuple(types.float32, 8)(x, y, types.intp, types.intp)
+
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        array_type = sig.args[0]
+        xs = context.make_array(array_type)(context, builder, args[0]).data
+        ys = context.make_array(array_type)(context, builder, args[1]).data
+        lo, hi = args[2], args[3]
+        floats = ir.VectorType(ir.FloatType(), 8)
+        loaded = ir.VectorType(xs.type.pointee, 8)
+        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
+
+        def term(index):  # type: ignore[no-untyped-def]
+            a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
+            b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
+            if array_type.dtype == types.uint8:
+                a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
+            return builder.call(fabs, [builder.fsub(a, b)])
+
+        sums = cgutils.alloca_once_value(builder, term(lo))
+        eight = ir.Constant(lo.type, 8)
+        with cgutils.for_range_slice(builder, builder.add(lo, eight), hi, eight, lo.type) as (index, _):
+            builder.store(builder.fadd(builder.load(sums), term(index)), sums)
+        total = builder.load(sums)
+        lanes = [builder.extract_element(total, ir.Constant(ir.IntType(32), k)) for k in range(8)]
+        return context.make_tuple(builder, sig.return_type, lanes)
+
+    return signature, codegen
+
+
+@jit
+def block_l1(x, y, start, n):  # type: ignore[no-untyped-def]
+    # NumPy's pairwise summation of |x - y| over n <= 128 values from start (block_sum of
+    # the absolute differences): 8 running sums combined as a fixed tree, then the rest one by one
+    if n < 8:
+        res = np.float32(-0.0)
+        for i in range(start, start + n):
+            res += abs(np.float32(x[_U(i)]) - np.float32(y[_U(i)]))
+        return res
+    full = n - n % 8
+    r0, r1, r2, r3, r4, r5, r6, r7 = lane_sums_l1(x, y, start, start + full)
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for k in range(start + full, start + n):
+        res += abs(np.float32(x[_U(k)]) - np.float32(y[_U(k)]))
+    return res
+
+
+@jit
+def pairwise_l1(x, y, frames, partial):  # type: ignore[no-untyped-def]
+    # float32 sum of |x - y| in NumPy's pairwise order (compiled_kernels.pairwise_sum's tree,
+    # on an explicit stack), plus the reduction's initial 0 as np.sum adds it. The walk repeats
+    # pairwise_sum's rather than taking the block function as an argument: numba does not
+    # cache a kernel that passes a function, and pairwise_sum's own blocks (behind SeqSLAM's
+    # difference matrix) are left as they are
+    n = x.shape[0]
+    if n <= PAIRWISE_BLOCK:
+        return np.float32(0.0) + block_l1(x, y, 0, n)
+    top = 0
+    frames[0, 0], frames[1, 0], frames[2, 0] = 0, n, 0
+    result = np.float32(0.0)
+    while top >= 0:
+        s, m = frames[0, top], frames[1, top]
+        if m <= PAIRWISE_BLOCK:
+            result = block_l1(x, y, s, m)
+            top -= 1
+            continue
+        h = m // 2
+        h -= h % 8
+        stage = frames[2, top]
+        if stage == 0:  # descend into the left half
+            frames[2, top] = 1
+            top += 1
+            frames[0, top], frames[1, top], frames[2, top] = s, h, 0
+        elif stage == 1:  # left done: keep it, descend into the right half
+            partial[top] = result
+            frames[2, top] = 2
+            top += 1
+            frames[0, top], frames[1, top], frames[2, top] = s + h, m - h, 0
+        else:  # both halves done
+            result = partial[top] + result
+            top -= 1
+    return np.float32(0.0) + result
+
+
+@jit
+def line_costs(table, owner, state, rows, anchor_query, anchor_map, shifts, velocities, n_map, map_informative,
+               need, vectors, query_rows, map_rows, costs, counts):  # type: ignore[no-untyped-def]
+    # The lines anchor_map + shifts[s] + round((rows - anchor_query) * velocities[v]): costs
+    # (S, V) float64 (inf where fewer than ``need`` pairs are inside the map on informative
+    # map frames), counts (S, V) int64. The distance of query position t and map position m
+    # sits in table[t % keep, m] (NaN: not computed yet; owner[t % keep] = t); state is
+    # [newest query position seen, distances computed]. Returns 0, or, before changing
+    # anything, the rows the table needs when this call's positions span more than it has.
+    # Distances: vectors[query_rows[t]] against vectors[map_rows[m]].
+    keep = table.shape[0]
+    n_shifts = shifts.shape[0]
+    n_speeds = velocities.shape[0]
+    n_rows = rows.shape[0]
+    steps = np.empty((n_speeds, n_rows), dtype=np.int64)
+    for v in range(n_speeds):
+        for r in range(n_rows):
+            steps[v, r] = np.int64(np.floor(np.float64(rows[r] - anchor_query) * velocities[v] + 0.5))
+    # pass 1: which pairs each line has inside the map, on informative map frames, how many;
+    # and which rows any line with enough pairs compares
+    inside = np.zeros((n_shifts, n_speeds, n_rows), dtype=np.bool_)
+    asked = np.zeros(n_rows, dtype=np.bool_)
+    for s in range(n_shifts):
+        base = anchor_map + shifts[s]
+        for v in range(n_speeds):
+            count = 0
+            for r in range(n_rows):
+                m = base + steps[v, r]
+                if 0 <= m < n_map and map_informative[m]:
+                    inside[s, v, r] = True
+                    count += 1
+            counts[s, v] = count
+            if count >= need:
+                for r in range(n_rows):
+                    if inside[s, v, r]:
+                        asked[r] = True
+    lowest = np.int64(-1)
+    highest = np.int64(-1)
+    for r in range(n_rows):
+        if asked[r]:
+            if lowest < 0 or rows[r] < lowest:
+                lowest = rows[r]
+            if rows[r] > highest:
+                highest = rows[r]
+    if lowest < 0:  # no line has enough pairs
+        costs[:, :] = np.inf
+        return 0
+    if highest - lowest >= keep:
+        return highest - lowest + 1
+    # rows that hold another position, or one older than the newest minus keep, are cleared
+    newest = state[0]
+    slots = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        t = rows[r]
+        slots[r] = t % keep
+        if asked[r] and (owner[slots[r]] != t or t <= newest - keep):
+            table[slots[r], :] = np.nan
+            owner[slots[r]] = t
+    state[0] = max(newest, highest)
+    # pass 2: each line's entries (its distances, computed when missing), summed as NumPy sums
+    values = np.empty(n_rows, dtype=np.float64)
+    frames = np.empty((3, 64), dtype=np.int64)
+    partial = np.empty(64, dtype=np.float32)
+    frames64 = np.empty((3, 64), dtype=np.int64)
+    partial64 = np.empty(64, dtype=np.float64)
+    computed = 0
+    for s in range(n_shifts):
+        base = anchor_map + shifts[s]
+        for v in range(n_speeds):
+            if counts[s, v] < need:
+                costs[s, v] = np.inf
+                continue
+            for r in range(n_rows):
+                if inside[s, v, r]:
+                    m = base + steps[v, r]
+                    value = table[slots[r], m]
+                    if np.isnan(value):
+                        value = pairwise_l1(vectors[query_rows[rows[r]]], vectors[map_rows[m]], frames, partial)
+                        table[slots[r], m] = value
+                        computed += 1
+                    values[r] = np.float64(value)
+                else:
+                    values[r] = 0.0
+            costs[s, v] = (0.0 + pairwise_sum(values, 0, n_rows, frames64, partial64)) / np.float64(counts[s, v])
+    state[1] += computed
+    return 0
