@@ -44,14 +44,23 @@ def threads_for(work: float, minimum_work: float = 2e7) -> int:
     return max(1, min(8, usable))
 
 
+CHUNKS_PER_THREAD = 4
+"""Ranges per thread: a thread whose core is busy with other work takes fewer of them, so
+one slow half no longer holds the whole call (on a shared 2-core machine it did)."""
+
+
 def run_chunks(work: Callable[[int, int], None], n: int, threads: int) -> None:
-    """Call ``work(start, stop)`` over ``[0, n)`` split into ``threads`` contiguous ranges,
-    in parallel when ``threads > 1`` (the kernels release the GIL)."""
+    """Call ``work(start, stop)`` over ``[0, n)`` split into contiguous ranges (a multiple of
+    4 rows long, as the kernels' row blocks), ``threads`` of them running at once when
+    ``threads > 1`` (the kernels release the GIL). Each row's result must not depend on its
+    range (every kernel here computes row by row)."""
     if threads <= 1 or n < 2:
         work(0, n)
         return
-    bounds = np.linspace(0, n, min(threads, n) + 1).astype(int)
-    with ThreadPoolExecutor(len(bounds) - 1) as pool:
+    pieces = min(threads * CHUNKS_PER_THREAD, max(1, n // 4))
+    bounds = np.unique(np.linspace(0, n, pieces + 1).astype(int) // 4 * 4)
+    bounds = np.append(bounds[bounds < n], n) if bounds[-1] != n else bounds
+    with ThreadPoolExecutor(min(threads, len(bounds) - 1)) as pool:
         for future in [pool.submit(work, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
             future.result()
 
