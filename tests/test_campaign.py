@@ -233,3 +233,21 @@ def test_interrupted_campaign_resumes_without_redoing_finished_runs(cli, tmp_pat
     code, stdout, _ = cli("sweep", sweep, "-o", out, "-q")
     assert code == 0 and "(0 ran now, 6 already finished)" in stdout
     assert np.all([_finished_runs(out)[f] == after[f] for f in after])
+
+
+def test_a_finished_run_made_by_other_code_is_run_again(cli, tmp_path: Path) -> None:
+    sweep = write_sweep(tmp_path, {"grid": {"loop_detector.params.uniqueness_window": [2, 10]}},
+                        quiet_recipe(frames_per_traversal=40))
+    out = tmp_path / "out"
+    code, _, stderr = cli("sweep", sweep, "-o", out, "--workers", "1", "-q")
+    assert code == 0, stderr
+    records = sorted((out / "runs").glob(f"*/{RECORD_FILE}"))
+    assert len(records) == 2 and all(len(json.loads(r.read_text())["code"]) == 16 for r in records)
+    # as if the first run had been made before a detector changed
+    stale = json.loads(records[0].read_text())
+    records[0].write_text(json.dumps({**stale, "code": "0" * 16}))
+    code, stdout, stderr = cli("sweep", sweep, "-o", out, "--workers", "1", "-q")
+    assert code == 0, stderr
+    assert "1 finished run was made by other code" in stderr and "running it again" in stderr
+    assert "(1 ran now, 1 already finished)" in stdout
+    assert json.loads(records[0].read_text())["code"] == json.loads(records[1].read_text())["code"]

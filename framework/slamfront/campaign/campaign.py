@@ -24,7 +24,7 @@ from slamfront.campaign.report import write_campaign_report
 from slamfront.campaign.results import ResultsTable, build_table, write_csv, write_json
 from slamfront.campaign.store import CampaignStore
 from slamfront.campaign.sweepfile import Sweep, read_sweep
-from slamfront.campaign.task import RunTask
+from slamfront.campaign.task import RunTask, code_fingerprint
 from slamfront.evaluation.loops import PR_CURVE_FILE, read_pr_curve
 from slamfront.interrupts import Interrupts
 from slamfront.outputs import safe_name, same_file
@@ -93,7 +93,12 @@ def _run_locked(
     out_dir = store.root
     if not same_file(sweep_path, out_dir / "sweep.yaml"):  # resuming from the copy is fine
         shutil.copyfile(sweep_path, out_dir / "sweep.yaml")
-    finished = {} if force else store.finished()
+    finished = {} if force else store.finished(code_fingerprint())
+    planned = {run.key for run in runs}
+    if not force and (stale := len(set(store.finished()) & planned) - len(set(finished) & planned)):
+        many = stale > 1
+        print(f"{out_dir}: {stale} finished run{'s were' if many else ' was'} made by other code (slamfront or its "
+              f"plugins changed since): running {'them' if many else 'it'} again", file=sys.stderr)
     folders = {run.key: finished[run.key] for run in runs if run.key in finished}
     records = {key: store.read_record(folder) or {} for key, folder in folders.items()}
     todo = [run for run in runs if run.key not in folders]

@@ -50,12 +50,14 @@ class CampaignStore:
             make_folder(self.runs_dir, "campaign folder")  # only once the folder is ours
             yield
 
-    def finished(self) -> dict[str, Path]:
-        """``{key: run folder}`` of every run recorded as ``ok`` with its metrics present."""
+    def finished(self, code: str | None = None) -> dict[str, Path]:
+        """``{key: run folder}`` of every run recorded as ``ok`` with its metrics present (made by
+        the code ``code``, :func:`slamfront.campaign.task.code_fingerprint`, unless None)."""
         found: dict[str, Path] = {}
         for record_path in sorted(self.runs_dir.glob(f"*/{RECORD_FILE}")):
             record = self.read_record(record_path.parent)
-            if record is not None and record.get("status") == "ok" and (record_path.parent / METRICS_FILE).is_file():
+            if record is not None and record.get("status") == "ok" and (record_path.parent / METRICS_FILE).is_file() \
+                    and (code is None or record.get("code") == code):
                 found[str(record.get("key"))] = record_path.parent
         return found
 
@@ -93,6 +95,7 @@ class CampaignStore:
             "max_frames": run.max_frames,
             "wall_seconds": outcome.wall_seconds,
             "host": outcome.host,
+            "code": outcome.code,
         }
         write_atomically(folder / RECORD_FILE, json.dumps(record, indent=2, default=str) + "\n")
         return record

@@ -8,6 +8,9 @@ Data paths in the recipe are resolved here, on the machine that runs it.
 from __future__ import annotations
 
 import contextlib
+import functools
+import hashlib
+import importlib.metadata
 import os
 import platform
 import tempfile
@@ -59,6 +62,8 @@ class RunOutcome:
     wall_seconds: float = 0.0
     """The whole task: building the pipeline, running it, evaluating, reporting."""
     host: str = ""
+    code: str = ""
+    """:func:`code_fingerprint` of the worker that ran it."""
     files: dict[str, bytes] | None = None
     """The run folder's files by relative path, when the task had no ``out_dir``."""
 
@@ -79,12 +84,33 @@ def limit_threads(threads: int) -> None:
     cv2.setNumThreads(threads)
 
 
+@functools.cache
+def code_fingerprint() -> str:
+    """What code a run executes, as a short sha256: the sources of slamfront and of its built-in
+    plugins, and the name and version of every installed package in the ``slamfront`` entry-point
+    group. A campaign resumes a finished run only when this matches (a changed detector would
+    otherwise mix two versions' results in one table). Plugin modules a recipe loads from a
+    local path are not covered; ``--force`` reruns everything."""
+    import slamfront
+    import slamfront_plugins
+
+    digest = hashlib.sha256()
+    for package in (slamfront, slamfront_plugins):
+        root = Path(package.__file__).parent
+        for path in sorted(root.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    installed = {f"{ep.dist.name} {ep.dist.version}" for ep in importlib.metadata.entry_points(group="slamfront")
+                 if ep.dist is not None}
+    digest.update("\n".join(sorted(installed)).encode())
+    return digest.hexdigest()[:16]
+
+
 def run_one(task: RunTask) -> RunOutcome:
     """Execute one run: ``parse_recipe`` -> ``build_pipeline`` -> ``run_pipeline``."""
     limit_threads(task.threads)
     started = time.perf_counter()
     with _run_folder(task.out_dir) as out_dir:
-        outcome = RunOutcome(key=task.key, status="failed", host=platform.node())
+        outcome = RunOutcome(key=task.key, status="failed", host=platform.node(), code=code_fingerprint())
         try:
             recipe = parse_recipe(task.recipe, task.origin)
             data = Path(task.data_root) if task.data_root else None
