@@ -12,7 +12,6 @@ Writes results/logging.md (results/logging_<recipe>.md for another recipe).
 from __future__ import annotations
 
 import argparse
-import platform
 import statistics
 import sys
 import tempfile
@@ -50,21 +49,6 @@ VARIANTS: dict[str, tuple[str, list[str]]] = {
 def run_variant(recipe: str, overrides: Sequence[str], max_frames: int | None, out: Path) -> RunResult:
     loaded, path = load_recipe(recipe, overrides)
     return run_pipeline(build_pipeline(loaded, str(path)), str(path), out, progress=False, max_frames=max_frames)
-
-
-def machine() -> str:
-    """CPU model, cores and Python, for the table's header."""
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}"
 
 
 def timed(work) -> float:  # type: ignore[no-untyped-def]

@@ -1,10 +1,13 @@
 """Runtime costs: rendering the synthetic world, the paired_demo pipeline, and logging.
 
-Run: .venv/bin/python benchmarks/bench_runtime.py
+Run: .venv/bin/python benchmarks/bench_runtime.py [--rounds 3]
 """
 
 from __future__ import annotations
 
+import argparse
+import os
+import statistics
 import sys
 import tempfile
 from pathlib import Path
@@ -32,41 +35,61 @@ def render_rates() -> list[list[object]]:
     return rows
 
 
-def pipeline_runs() -> tuple[list[list[object]], dict[str, float]]:
-    rows = []
-    timings = {}
-    for label, overrides in (
-        ("images off", ["log.images=false"]),
-        ("images on (jpeg, 320 px)", []),
-        ("images on (png, lossless)", ["log.image_format=png"]),
-    ):
-        recipe, path = load_recipe("paired_demo", overrides)
-        with tempfile.TemporaryDirectory() as out:
-            result = run_pipeline(build_pipeline(recipe, str(path)), str(path), Path(out), progress=False)
-            metrics = result.metrics
-        timings[label] = metrics["seconds"]
-        rows.append([
-            label, metrics["seconds"], metrics["frames_per_second"], metrics["log_bytes"] / metrics["n_frames"] / 1024,
-        ])
-    base = timings["images off"]
-    for row in rows:
-        row.append(row[1] / base)
-    stage_rows = [
-        [kind, t["median_ms"], t["p99_ms"], t["total_s"]] for kind, t in metrics["timing"].items()
-    ]
-    return rows, {"stages": stage_rows}
+SETTINGS = (
+    ("images off", ["log.images=false"]),
+    ("images on (jpeg, 320 px)", []),
+    ("images on (png, lossless)", ["log.image_format=png"]),
+)
+
+
+def _run(overrides: list[str]) -> dict:
+    recipe, path = load_recipe("paired_demo", overrides)
+    with tempfile.TemporaryDirectory() as out:
+        return run_pipeline(build_pipeline(recipe, str(path)), str(path), Path(out), progress=False).metrics
+
+
+def pipeline_runs(rounds: int) -> tuple[list[list[object]], list[list[object]]]:
+    """Every setting once per round, interleaved (A B C A B C ...), after one untimed warm-up
+    run (the first run in a process pays compilation and the world's caches); seconds are
+    medians over rounds, ratios the medians of the round-by-round ratios."""
+    _run(["log.images=false"])
+    seconds: dict[str, list[float]] = {label: [] for label, _ in SETTINGS}
+    metrics: dict[str, dict] = {}
+    for _ in range(rounds):
+        for label, overrides in SETTINGS:
+            metrics[label] = _run(overrides)
+            seconds[label].append(metrics[label]["seconds"])
+    base = seconds["images off"]
+    rows: list[list[object]] = []
+    for label, _ in SETTINGS:
+        m = metrics[label]
+        ratios = [a / b for a, b in zip(seconds[label], base)]
+        rows.append([label, statistics.median(seconds[label]), m["n_frames"] / statistics.median(seconds[label]),
+                     m["log_bytes"] / m["n_frames"] / 1024, statistics.median(ratios),
+                     f"{min(ratios):.3g}-{max(ratios):.3g}"])
+    last = metrics[SETTINGS[-1][0]]
+    stage_rows: list[list[object]] = [[kind, t["median_ms"], t["p99_ms"], t["total_s"]] for kind, t in last["timing"].items()]
+    return rows, stage_rows
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds of the pipeline runs")
+    args = parser.parse_args()
+    load = os.getloadavg()[0]
     render = render_rates()
-    runs, extra = pipeline_runs()
+    runs, stages = pipeline_runs(args.rounds)
     body = "\n\n".join([
+        f"`nice .venv/bin/python benchmarks/bench_runtime.py --rounds {args.rounds}`; load average (1 min) "
+        f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, on a machine shared with other jobs: "
+        "compare the ratios.",
         "## Synthetic world rendering (one core for shading, Open3D ray casting on all)",
         table(["image", "frames/s", "ms/frame", "time vs 160x120"], render),
-        "## paired_demo recipe (400 + 400 frames), whole run incl. rendering",
-        table(["log setting", "seconds", "frames/s", "log KiB/frame", "time vs images off"], runs),
-        "## Per-stage latency (last run)",
-        table(["stage", "median ms", "p99 ms", "total s"], extra["stages"]),
+        f"## paired_demo recipe (400 + 400 frames), whole run incl. rendering, {args.rounds} interleaved rounds",
+        table(["log setting", "seconds (median)", "frames/s", "log KiB/frame", "time vs images off (median)",
+               "[range]"], runs),
+        "## Per-stage latency (last run, png)",
+        table(["stage", "median ms", "p99 ms", "total s"], stages),
     ])
     publish("runtime", "Runtime benchmark", body)
 
