@@ -309,7 +309,7 @@ def _dusk_like(name: str, amount: float, **params: Any) -> tuple[list[Message], 
         params = {"accept_query_null": True, **params}  # off by default for the faithful preset
         return run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**params))), 300
     if name == "nearest_neighbour_confidence":  # the queries' null is of the answers' own confidence (opt-in)
-        params = {"accept_on": "confidence", "accept_query_null": True, **params}
+        params = {"accept_score": "confidence", "accept_query_null": True, **params}
     return _feed_global(NearestNeighbour(NearestNeighbour.Config(**params)), vectors, traversals, "l2"), 300
 
 

@@ -85,7 +85,7 @@ def test_support_accepts_more_right_answers_at_dusk_and_keeps_them_right(amount:
     assert right >= 0.95 * len(accepted)
     thresholds = [m for m in out if isinstance(m, AcceptThreshold)]
     assert [m.source for m in thresholds] == ["reference"]  # calibrated once, on the reference
-    for own in ({"accept_on": "confidence"}, {"accept_on": "confidence", "accept_query_null": True}):
+    for own in ({"accept_score": "confidence"}, {"accept_score": "confidence", "accept_query_null": True}):
         plain, _ = _dusk_like("nearest_neighbour", amount, **own)
         assert right > sum(abs(r.match - (r.frame - n)) <= 3 for r in _accepted(plain, n)) + 20
     # the answers' confidence (what R@100%P and AUC rank) is the same either way
@@ -111,7 +111,7 @@ def test_a_confident_isolated_answer_is_not_accepted() -> None:
     assert answer.match == 40 and answer.confidence > 0.9
     assert not answer.accepted and not _accepted(out, n)
     # on its own confidence it would have been accepted
-    plain, _, _ = _with_an_impostor(accept_on="confidence")
+    plain, _, _ = _with_an_impostor(accept_score="confidence")
     assert next(m for m in plain if isinstance(m, LoopResult) and m.frame == impostor).accepted
 
 
@@ -122,3 +122,12 @@ def test_a_fixed_accept_compares_the_answers_own_confidence() -> None:
     assert all(r.accepted == (r.confidence >= 0.05) for r in results)
     assert NearestNeighbour(NearestNeighbour.Config(accept=0.05)).statistics()["accept_on_supported_confidence"] == 0
     assert NearestNeighbour().statistics()["accept_on_supported_confidence"] == 1
+
+
+def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
+    from slamfront.report.headline import headline
+
+    metrics = {"recall_at_100p": 0.2, "auc_pr": 0.5, "precision_at_operating_point": 1.0,
+               "recall_at_operating_point": 0.4, "accept_threshold": 5e-324, "accept_auto": 1, "n_accepted": 3,
+               "accept_on_supported_confidence": 1}
+    assert "(supported confidence > 0, calibrated)" in headline(metrics)[0]

@@ -91,7 +91,7 @@ class SupportConfig(AcceptanceConfig):
     """An operating point that may threshold the temporally supported confidence
     (:mod:`slamfront.core.temporal_support`) instead of the answer's own."""
 
-    accept_on: Literal["confidence", "supported_confidence"] = Field(
+    accept_score: Literal["confidence", "supported_confidence"] = Field(
         "supported_confidence", description="accept: auto: the score thresholded; supported_confidence: the "
         "confidence that at least support_agree of the last support_answers answers reach while agreeing with "
         "this one along the route (the reference's wrong answers scored the same way calibrate it; answers keep "
@@ -132,7 +132,7 @@ class Acceptance:
         self._reference_median: float | None = None  # of the reference's wrong confidences (the shift rule)
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
-        self.on_support = self.auto and getattr(config, "accept_on", "confidence") == "supported_confidence"
+        self.on_support = self.auto and getattr(config, "accept_score", "confidence") == "supported_confidence"
         """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
         self._tracker = (SupportTracker(config.support_answers, config.support_agree,  # type: ignore[attr-defined]
                                         config.support_tolerance_frames) if self.on_support else None)
@@ -149,7 +149,7 @@ class Acceptance:
 
     def score(self, frame: int, match: int, confidence: float) -> float:
         """What the threshold is compared with for this answer (answers in time order): its
-        confidence, or with ``accept_on: supported_confidence`` its supported confidence."""
+        confidence, or with ``accept_score: supported_confidence`` its supported confidence."""
         if self._tracker is None:
             return confidence
         return self._tracker.update(frame, match, confidence)

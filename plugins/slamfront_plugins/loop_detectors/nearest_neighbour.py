@@ -53,7 +53,7 @@ class NearestNeighbour(LoopDetector):
         )
 
         accept_query_null: bool = Field(
-            False, description="accept: auto with accept_on: confidence: let the queries' leave-the-answer-out "
+            False, description="accept: auto with accept_score: confidence: let the queries' leave-the-answer-out "
             "null move the threshold down (acceptance.py); not used on the supported confidence, which replaced it "
             "as the default (docs/loop_closure.md)"
         )
