@@ -8,6 +8,12 @@ reference frames against the rest of the reference outside ``accept_exclusion_fr
 answer is wrong), before its first query. A stream: the answers to its first
 ``accept_calibration_frames`` frames (before any revisit; none of them is accepted) are the wrong
 ones. The threshold: those wrong confidences' ``1 - false_accept_rate`` quantile.
+
+A detector whose config is a :class:`SupportConfig` may instead threshold each answer's
+*temporally supported* confidence (:mod:`slamfront.core.temporal_support`: the confidence that
+at least half of its recent answers, agreeing with it along the route, reach), calibrated the
+same way: the same support computed over the reference's own consecutive wrong answers. The
+answers keep their confidence (what precision-recall curves rank); only ``accepted`` changes.
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from slamfront.core.operating_point import query_null_threshold, query_shift_threshold, threshold_at_false_accept_rate
+from slamfront.core.temporal_support import SupportTracker, supported_confidence
 from slamfront.messages import AcceptThreshold, Message
 from slamfront.plugin import PluginConfig
 
@@ -80,6 +87,32 @@ class AcceptanceConfig(PluginConfig):
         return data
 
 
+class SupportConfig(AcceptanceConfig):
+    """An operating point that may threshold the temporally supported confidence
+    (:mod:`slamfront.core.temporal_support`) instead of the answer's own."""
+
+    accept_score: Literal["confidence", "supported_confidence"] = Field(
+        "supported_confidence", description="accept: auto: the score thresholded; supported_confidence: the "
+        "confidence that at least support_agree of the last support_answers answers reach while agreeing with "
+        "this one along the route (the reference's wrong answers scored the same way calibrate it; answers keep "
+        "their own confidence). A given accept always compares the answer's own confidence"
+    )
+    support_answers: int = Field(20, ge=1, description="supported_confidence: answers (query frames) looked back over, "
+                                 "this one included")
+    support_agree: int = Field(10, ge=1, description="supported_confidence: answers that must agree (this one "
+                               "included); a revisit's first support_agree - 1 frames are not accepted")
+    support_tolerance_frames: float = Field(
+        1.0, ge=0, description="supported_confidence: how far (map frames) an earlier answer may lie from the "
+        "line through this one (slope +1 or -1: one map frame per query frame) and still agree"
+    )
+
+    @model_validator(mode="after")
+    def _agree_within_answers(self) -> SupportConfig:
+        if self.support_agree > self.support_answers:
+            raise ValueError("support_agree must be at most support_answers")
+        return self
+
+
 class Acceptance:
     """One detector's operating point: fixed, or calibrated once from wrong answers.
 
@@ -99,6 +132,10 @@ class Acceptance:
         self._reference_median: float | None = None  # of the reference's wrong confidences (the shift rule)
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
+        self.on_support = self.auto and getattr(config, "accept_score", "confidence") == "supported_confidence"
+        """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
+        self._tracker = (SupportTracker(config.support_answers, config.support_agree,  # type: ignore[attr-defined]
+                                        config.support_tolerance_frames) if self.on_support else None)
         if not self.auto:
             self._outbox.append(AcceptThreshold(detector, float(self.threshold), False, "given", 0,  # type: ignore[arg-type]
                                                 float("nan"), float("nan")))
@@ -109,6 +146,21 @@ class Acceptance:
 
     def accepts(self, confidence: float) -> bool:
         return self.threshold is not None and confidence >= self.threshold
+
+    def score(self, frame: int, match: int, confidence: float) -> float:
+        """What the threshold is compared with for this answer (answers in time order): its
+        confidence, or with ``accept_score: supported_confidence`` its supported confidence."""
+        if self._tracker is None:
+            return confidence
+        return self._tracker.update(frame, match, confidence)
+
+    def reference_scores(self, positions: np.ndarray, matches: np.ndarray, confidences: np.ndarray) -> np.ndarray:
+        """:meth:`score` of the reference's answers to itself (positions in time order), to calibrate on."""
+        if not self.on_support:
+            return np.asarray(confidences, dtype=np.float64)
+        c = self._config
+        return supported_confidence(positions, matches, confidences, c.support_answers,  # type: ignore[attr-defined]
+                                    c.support_agree, c.support_tolerance_frames)  # type: ignore[attr-defined]
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
         """Set the threshold from the confidences of answers known to be wrong."""
@@ -129,7 +181,8 @@ class Acceptance:
     @property
     def wants_query_null(self) -> bool:
         """Whether :meth:`query_null` is used (a detector may skip the extra search otherwise)."""
-        return self.auto and self._config.accept_query_null and self.reference_threshold is not None
+        return (self.auto and self._config.accept_query_null and self.reference_threshold is not None
+                and not self.on_support)  # the null is of answers' own confidences
 
     def query_null(self, confidence: float, frames: int = 1) -> None:
         """A query's leave-the-answer-out confidence (the detector's answer with the answered
@@ -162,7 +215,8 @@ class Acceptance:
     def stream_answer(self, position: int, confidence: float) -> bool:
         """A stream's answer to its ``position``-th frame (0-based): gathered as a wrong one while
         in the first ``accept_calibration_frames``, the threshold set at the first answer after them.
-        Returns whether it is accepted."""
+        Returns whether it is accepted. A stream's threshold is on the answers' own confidence."""
+        self.on_support = False
         if self.calibrated:
             return self.accepts(confidence)
         if position < self._config.accept_calibration_frames:
@@ -185,4 +239,6 @@ class Acceptance:
         return {"accept_threshold": nan if self.threshold is None else self.threshold,
                 "accept_auto": int(self.auto), "accept_n_wrong": self.n_wrong,
                 "accept_threshold_reference": nan if self.reference_threshold is None else self.reference_threshold,
-                "accept_n_query_null": len(self._null)}
+                "accept_n_query_null": len(self._null),
+                **({"accept_on_supported_confidence": int(self.on_support)}
+                   if isinstance(self._config, SupportConfig) else {})}

@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import Field
 
 from slamfront import LoopDetector, Plugin, StageInputs
-from slamfront.acceptance import Acceptance, AcceptanceConfig
+from slamfront.acceptance import Acceptance, SupportConfig
 from slamfront.core.buffers import GrowingRows
 from slamfront.core.distances import pairwise, smallest, to_one
 from slamfront.core.operating_point import (
@@ -19,6 +19,7 @@ from slamfront.core.operating_point import (
     self_queries,
     uniqueness_confidence,
 )
+from slamfront.core.temporal_support import contiguous_self_queries
 from slamfront.messages import LoopResult, Message
 from slamfront.plugin import global_features, require_global_descriptor
 
@@ -32,13 +33,17 @@ class NearestNeighbour(LoopDetector):
     outside ``uniqueness_window`` frames of the best match, so a match that is much
     better than anywhere else is trusted more. ``accept`` is the operating point: by default
     calibrated on the reference searched against itself outside ``accept_exclusion_frames`` (or on
-    a stream's first ``accept_calibration_frames``), see :mod:`slamfront.acceptance`.
+    a stream's first ``accept_calibration_frames``), see :mod:`slamfront.acceptance`. With paired
+    traversals ``accept: auto`` thresholds the *supported* confidence
+    (:mod:`slamfront.core.temporal_support`): a single image's uniqueness drops under an appearance
+    change for right and wrong answers alike, but right answers keep agreeing with their
+    neighbours along the route. A stream keeps the answer's own confidence.
     """
 
     name = "nearest_neighbour"
     requires = ("descriptor",)
 
-    class Config(AcceptanceConfig):
+    class Config(SupportConfig):
         legacy_accept_key = "threshold"
 
         false_accept_rate: float = Field(
@@ -47,6 +52,11 @@ class NearestNeighbour(LoopDetector):
             "through: precision 0.915)"
         )
 
+        accept_query_null: bool = Field(
+            False, description="accept: auto with accept_score: confidence: let the queries' leave-the-answer-out "
+            "null move the threshold down (acceptance.py); not used on the supported confidence, which replaced it "
+            "as the default (docs/loop_closure.md)"
+        )
         accept_query_null_rule: Literal["quantile", "shift"] = Field(
             "shift", description="accept_query_null (acceptance.py): shift; the quantile rule (the largest null "
             "value at false_accept_rate 0) let wrong answers through on Nordland chunks (docs/loop_closure.md)"
@@ -83,7 +93,9 @@ class NearestNeighbour(LoopDetector):
             answer = self._search(frame.index, features.vector, frame.traversal == "stream")
             if answer.match >= 0:
                 accepted = (self._acceptance.stream_answer(self._n_query, answer.confidence)
-                            if frame.traversal == "stream" else self._acceptance.accepts(answer.confidence))
+                            if frame.traversal == "stream" else
+                            self._acceptance.accepts(self._acceptance.score(frame.index, answer.match,
+                                                                            answer.confidence)))
                 answer = LoopResult(frame=answer.frame, match=answer.match, confidence=answer.confidence,
                                     accepted=accepted, candidates=answer.candidates)
             result.append(answer)
@@ -100,10 +112,11 @@ class NearestNeighbour(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """Every reference frame's best match among the reference frames more than
-        ``accept_exclusion_frames`` away is wrong: its confidences calibrate the threshold."""
+        ``accept_exclusion_frames`` away is wrong: its confidences (or their support along
+        consecutive reference frames) calibrate the threshold."""
         n = 0 if self._vectors is None else len(self._frames)
         window = exclusion_window(n, self.config.accept_exclusion_frames)
-        queries = self_queries(n, window, 500)
+        queries = (contiguous_self_queries if self._acceptance.on_support else self_queries)(n, window, 500)
         if len(queries) == 0:
             self._acceptance.calibrate([], "reference")
             return
@@ -112,8 +125,9 @@ class NearestNeighbour(LoopDetector):
         distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
         self._n_calibration_distances = distances.size
         masked = exclusion_masked(distances, np.arange(n), queries, window)
-        _, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
-        self._acceptance.calibrate(confidence[moving(distances, np.arange(n), queries)], "reference")
+        best, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
+        scores = self._acceptance.reference_scores(queries, best, confidence)
+        self._acceptance.calibrate(scores[moving(distances, np.arange(n), queries)], "reference")
 
     def _search(self, frame: int, vector: np.ndarray, stream: bool) -> LoopResult:
         if not np.any(vector):  # featureless (a black or blank frame): equally near every other one

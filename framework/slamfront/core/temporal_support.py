@@ -1,0 +1,104 @@
+"""Temporally supported confidence: how confident an answer is *and* how many of the answers
+just before it agree with it along the route.
+
+A right loop-closure answer is usually supported by its neighbours in time: consecutive query
+frames answer consecutive map frames, in one direction (the route is being re-driven, forwards
+or backwards). A wrong answer usually is not: the next frame's wrong answer lands elsewhere.
+The same idea is in SeqSLAM's sequence matching (Milford & Wyeth 2012) and in the temporal
+consistency check of Rodrigues 2019; here it is a score an operating point can threshold,
+computed from answers already given (causal: no look-ahead).
+
+The supported confidence of answer ``i`` (query frame ``f_i`` answered with map frame ``m_i``
+at confidence ``c_i``): among the answers to the ``answers - 1`` frames before it, those that
+*agree* with it are the ones on the same line through it, ``|(m_j - m_i) - s (f_j - f_i)| <=
+tolerance`` for one direction ``s`` in {+1, -1}; together with ``i`` itself, their confidences'
+``agree``-th largest is the supported confidence (0 when fewer than ``agree`` agree). With
+``agree = answers / 2`` it reads: at least half of the last ``answers`` answers lie on one line
+with this one, each at least this confident. The answer's own confidence is one of them but
+need not be the smallest: a weak answer in a confident run is supported by its run.
+
+The price is latency: a revisit's first ``agree - 1`` frames cannot be supported yet (their
+answers are given, with their confidence, but not accepted).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from slamfront.core.errors import CoreError
+
+
+def _check(answers: int, agree: int, tolerance: float) -> None:
+    if answers < 1 or not 1 <= agree <= answers:
+        raise CoreError(f"support needs 1 <= agree <= answers, got agree={agree}, answers={answers}")
+    if tolerance < 0:
+        raise CoreError(f"support tolerance must be >= 0, got {tolerance}")
+
+
+def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
+                    answers: int, agree: int, tolerance: float) -> float:
+    """The supported confidence of the *last* answer of ``frames``/``matches``/``confidences``
+    (answers in time order; a match < 0 is no answer and supports nothing). Only earlier answers
+    fewer than ``answers`` frames before it count."""
+    _check(answers, agree, tolerance)
+    f = np.asarray(frames, dtype=np.float64)
+    m = np.asarray(matches, dtype=np.float64)
+    c = np.nan_to_num(np.asarray(confidences, dtype=np.float64), nan=0.0)
+    if len(f) == 0 or m[-1] < 0:
+        return 0.0
+    gap = f[-1] - f[:-1]
+    earlier = (gap > 0) & (gap < answers) & (m[:-1] >= 0)
+    best = 0.0
+    for direction in (1.0, -1.0):
+        on_line = earlier & (np.abs((m[:-1] - m[-1]) + direction * gap) <= tolerance)
+        values = np.sort(np.concatenate([[c[-1]], c[:-1][on_line]]))[::-1]
+        if len(values) >= agree:
+            best = max(best, float(values[agree - 1]))
+    return best
+
+
+def supported_confidence(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
+                         answers: int, agree: int, tolerance: float) -> np.ndarray:
+    """(n,) the supported confidence of every answer (in time order) from the answers before it
+    (:func:`support_of_last` of each prefix)."""
+    _check(answers, agree, tolerance)
+    f = np.asarray(frames)
+    m = np.asarray(matches)
+    c = np.asarray(confidences)
+    out = np.zeros(len(f))
+    for i in range(len(f)):
+        lo = max(0, i - answers + 1)
+        out[i] = support_of_last(f[lo:i + 1], m[lo:i + 1], c[lo:i + 1], answers, agree, tolerance)
+    return out
+
+
+def contiguous_self_queries(n: int, window: int, most: int, run: int = 50) -> np.ndarray:
+    """Positions of a traversal of ``n`` frames to search against the rest of itself when their
+    answers' *support* is wanted: every frame when there are no more than ``most``, else
+    ``most // run`` stretches of ``run`` consecutive frames, evenly spread (support is measured
+    along consecutive answers, so an even thinning would change it). Empty when no frame has a
+    frame more than ``window`` away."""
+    if n <= window + 1:
+        return np.empty(0, dtype=np.int64)
+    if n <= most:
+        return np.arange(n, dtype=np.int64)
+    run = max(1, min(run, most))
+    starts = np.linspace(0, n - run, max(1, most // run)).round().astype(np.int64)
+    return np.unique((starts[:, None] + np.arange(run)[None, :]).ravel())
+
+
+class SupportTracker:
+    """:func:`support_of_last` online: the answers of the last ``answers`` frames are kept."""
+
+    def __init__(self, answers: int, agree: int, tolerance: float) -> None:
+        _check(answers, agree, tolerance)
+        self._answers, self._agree, self._tolerance = answers, agree, tolerance
+        self._recent: deque[tuple[int, int, float]] = deque(maxlen=answers)
+
+    def update(self, frame: int, match: int, confidence: float) -> float:
+        """The supported confidence of this answer (``match`` < 0: no answer, 0)."""
+        self._recent.append((int(frame), int(match), float(confidence)))
+        f, m, c = (np.array(column) for column in zip(*self._recent, strict=True))
+        return support_of_last(f, m, c, self._answers, self._agree, self._tolerance)
