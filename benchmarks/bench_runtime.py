@@ -24,6 +24,9 @@ from slamfront_plugins.sources.synthetic import SyntheticWorld  # noqa: E402
 def render_rates() -> list[list[object]]:
     rows = []
     base = None
+    warm = SyntheticWorld(SyntheticWorld.Config(frames_per_traversal=40, image_width=160, image_height=120)).frames()
+    for _ in range(10):  # untimed: the first frames of a process pay compilation and the ray caster's set-up
+        next(warm)
     for width, height in ((160, 120), (320, 240), (640, 480)):
         source = SyntheticWorld(SyntheticWorld.Config(frames_per_traversal=40, image_width=width, image_height=height))
         frames = source.frames()
