@@ -14,12 +14,15 @@ Run: nice .venv/bin/python benchmarks/bench_generalisation.py [--workers 2] [--o
 ``--quick`` runs the Nordland rows and only world seed 0 of the synthetic rows (rendering
 the synthetic street is most of the full benchmark's time on two cores), ``--methods``
 only some detectors; the table says which runs it holds. The full command resumes from
-a partial one's finished runs.
+a partial one's finished runs made by the same code (a campaign reruns runs made by other
+code); ``--replace METHOD=DIR`` takes one detector's runs from another campaign folder of
+this sweep, e.g. after only that detector changed, and says so.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -153,7 +156,14 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="synthetic world seed 0 only (Nordland rows in full)")
     parser.add_argument("--methods", nargs="+", choices=METHODS, help="only these detectors (default: all)")
     parser.add_argument("--rows", nargs="+", help="only these variants of the sweep (published as generalisation_rows)")
+    parser.add_argument("--replace", nargs="+", default=[], metavar="METHOD=DIR",
+                        help="take METHOD's runs from DIR, the folder of another campaign of this sweep (e.g. "
+                             "`--methods METHOD --out DIR` run by newer code), instead of this one's; the table says so")
     args = parser.parse_args()
+    replaced = dict(item.split("=", 1) for item in args.replace)
+    unknown = sorted(set(replaced) - set(METHODS))
+    if unknown:
+        raise SystemExit(f"--replace: unknown detectors {unknown}; the sweep has {list(METHODS)}")
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as folder, LocalBackend(args.workers) as backend:
         sweep = (part_of_sweep(Path(folder), args.quick, args.methods, args.rows)
@@ -161,7 +171,13 @@ def main() -> None:
         result = run_campaign(sweep, args.out, backend, progress=True)
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     failed = []
-    for row in result.table.rows:
+    rows_run = [row for row in result.table.rows if row["method"] not in replaced]
+    for method, folder in replaced.items():
+        taken = [row for row in json.loads((Path(folder) / "results.json").read_text())["runs"] if row["method"] == method]
+        if not taken:
+            raise SystemExit(f"--replace: {folder}/results.json has no run of {method}")
+        rows_run += taken
+    for row in rows_run:
         if row["status"] != "ok":
             failed.append(f"{row['method']} / {row['variant']}: {row.get('error', row['status'])}")
             continue
@@ -233,12 +249,15 @@ def main() -> None:
     body = "\n\n".join([
         f"`nice .venv/bin/python benchmarks/bench_generalisation.py{' --quick' if args.quick else ''}"
         f"{' --methods ' + ' '.join(args.methods) if args.methods else ''}"
-        f"{' --rows ' + ' '.join(args.rows) if args.rows else ''}` (sweep `{SWEEP.name}`, {len(result.table.rows)} "
+        f"{' --rows ' + ' '.join(args.rows) if args.rows else ''}"
+        f"{' --replace ' + ' '.join(args.replace) if args.replace else ''}` (sweep `{SWEEP.name}`, {len(rows_run)} "
         f"runs, {args.workers} workers; load average {load:.1f} at the start: times are comparable within this table "
         "only). Shipped defaults, nothing tuned per dataset. Two sources only: 14 overlapping slices of one Nordland "
         "route and 10 worlds of the synthetic street's generator. Defaults were chosen on Nordland frames 2900-3575 "
         "and synthetic world seeds 100-102, but the whole route and exp. 2-3 contain frames 2900-3575, and some "
-        "rows shaped a detector's design (marked *; the untouched table leaves them out).",
+        "rows shaped a detector's design (marked *; the untouched table leaves them out)."
+        + "".join(f" {method}'s runs come from the campaign in `{folder}` (run with `--methods {method}`), not "
+                  "from this command's campaign." for method, folder in replaced.items()),
         "Recall at 100 % precision (R@100%P) and AUC-PR at zeta = 3; the correct-answer ceiling is the share of "
         "answerable queries whose answer is correct (what a perfect confidence would reach at 100 % precision); "
         "distances: descriptor distances the detector computed (SeqSLAM: the whole difference matrix; "
