@@ -119,6 +119,31 @@ def part_of_sweep(folder: Path, quick: bool, methods: list[str] | None, rows: li
     return path
 
 
+MIN_PRECISION = 0.95
+"""The least share of accepted answers that must be right at an operating point."""
+
+
+def shortfalls(cells: dict[tuple[str, str], list[dict]], variants: list[str]) -> list[list[object]]:
+    """Per detector, the rows where its operating point accepts answers less than
+    :data:`MIN_PRECISION` right, or recalls less than 0.5 x its R@100%P - 0.02, as
+    ``row (precision / recall, needed)``; untouched rows and rows that shaped it apart."""
+    out: list[list[object]] = []
+    for method in METHODS:
+        missed: dict[bool, list[str]] = {False: [], True: []}
+        for variant in variants:
+            for r in (r for g in GROUPS for r in cells.get((method, g), []) if r["variant"] == variant):
+                precision, recall = float(r["precision_at_operating_point"]), float(r["recall_at_operating_point"])
+                needed = 0.5 * float(r["recall_at_100p"]) - 0.02
+                accepted = int(float(r["n_accepted"])) > 0
+                if (accepted and precision < MIN_PRECISION) or recall < needed:
+                    missed[variant in SHAPED.get(method, set())].append(
+                        f"{variant} ({precision:.3f} / {recall:.3f}, needs {needed:.3f})" if accepted
+                        else f"{variant} (accepts nothing, needs {needed:.3f})")
+        if missed[False] or missed[True]:
+            out.append([method, "; ".join(missed[False]) or "-", "; ".join(missed[True]) or "-"])
+    return out
+
+
 def plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     import matplotlib
 
@@ -237,6 +262,7 @@ def main() -> None:
             line.append(f"{mark}{float(r['recall_at_100p']):.3f}; {float(r['precision_at_operating_point']):.3f} / "
                         f"{float(r['recall_at_operating_point']):.3f} ({int(float(r['n_accepted']))})")
         per_dataset.append(line)
+    short = shortfalls(cells, variants)
     whole = {m: cells.get((m, "nordland_whole"), [{}])[0] for m in METHODS}
     ratio = ""
     frames, seqslam = whole.get("hierarchical_frames", {}), whole.get("seqslam", {})
@@ -280,6 +306,11 @@ def main() -> None:
              "answered of answerable (min)"], overall),
         "## Every dataset: R@100%P; precision / recall at the operating point (answers accepted)\n\n"
         "(* the row shaped that detector)\n\n" + table(["dataset", *METHODS], per_dataset),
+        "## Where an operating point falls short\n\n"
+        f"A detector's accepted answers should be at least {MIN_PRECISION:.0%} right (or none accepted), and "
+        "recall at its operating point at least half of what its own ranking allows: >= 0.5 x R@100%P - 0.02. "
+        "Rows that miss either (* the row shaped that detector):\n\n"
+        + (table(["detector", "untouched rows", "rows that shaped it"], short) if short else "None."),
         ratio,
         "## Per dataset group\n\n" + "\n\n".join(section for section in sections if section.count("\n") > 3),
         "" if args.rows else f"![generalisation](../../docs/img/{IMAGE.name})",
