@@ -11,6 +11,7 @@ import contextlib
 import functools
 import hashlib
 import importlib.metadata
+import importlib.util
 import os
 import platform
 import tempfile
@@ -24,6 +25,7 @@ from typing import Any, Literal
 from slamfront.errors import SlamfrontError, run_failure_of
 from slamfront.outputs import write_atomically
 from slamfront.recipe import build_pipeline, parse_recipe
+from slamfront.registry import ENTRY_POINT_GROUP
 from slamfront.runtime import run_pipeline
 
 ERROR_FILE = "error.txt"
@@ -86,22 +88,24 @@ def limit_threads(threads: int) -> None:
 
 @functools.cache
 def code_fingerprint() -> str:
-    """What code a run executes, as a short sha256: the sources of slamfront and of its built-in
-    plugins, and the name and version of every installed package in the ``slamfront`` entry-point
-    group. A campaign resumes a finished run only when this matches (a changed detector would
-    otherwise mix two versions' results in one table). Plugin modules a recipe loads from a
-    local path are not covered; ``--force`` reruns everything."""
-    import slamfront
-    import slamfront_plugins
-
+    """What code a run executes, as a short sha256: the sources of slamfront and of every package
+    the ``slamfront`` entry-point group names (the built-in plugins among them), with those
+    distributions' names and versions. A campaign resumes a finished run only when this matches
+    (a changed detector would otherwise mix two versions' results in one table). Plugin modules a
+    recipe loads from a local path are not covered; ``--force`` reruns everything."""
     digest = hashlib.sha256()
-    for package in (slamfront, slamfront_plugins):
-        root = Path(package.__file__).parent
-        for path in sorted(root.rglob("*.py")):
-            digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
-    installed = {f"{ep.dist.name} {ep.dist.version}" for ep in importlib.metadata.entry_points(group="slamfront")
-                 if ep.dist is not None}
-    digest.update("\n".join(sorted(installed)).encode())
+    packages = {"slamfront"}
+    owners = set()
+    for entry_point in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        packages.add(entry_point.value.split(":")[0].split(".")[0])
+        if entry_point.dist is not None:
+            owners.add(f"{entry_point.dist.name} {entry_point.dist.version}")
+    for package in sorted(packages):
+        spec = importlib.util.find_spec(package)  # a top-level name: found, not imported
+        for root in (spec.submodule_search_locations or []) if spec is not None else []:
+            for path in sorted(Path(root).rglob("*.py")):
+                digest.update(f"{package}/{path.relative_to(root)}".encode() + b"\0" + path.read_bytes() + b"\0")
+    digest.update("\n".join(sorted(owners)).encode())
     return digest.hexdigest()[:16]
 
 
