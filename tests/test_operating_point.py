@@ -306,7 +306,8 @@ def _dusk_like(name: str, amount: float, **params: Any) -> tuple[list[Message], 
     traversals = ["reference"] * len(reference) + ["query"] * len(query)
     if name == "hierarchical_faithful":
         place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
-        params = {"accept_query_null": True, **params}  # off by default for the faithful preset
+        # the null is of the answers' own confidence, off by default for the faithful preset
+        params = {"accept_score": "confidence", "accept_query_null": True, **params}
         return run_stages(vectors, traversals, place_map, HierarchicalFaithful(HierarchicalFaithful.Config(**params))), 300
     if name == "nearest_neighbour_confidence":  # the queries' null is of the answers' own confidence (opt-in)
         params = {"accept_score": "confidence", "accept_query_null": True, **params}

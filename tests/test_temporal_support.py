@@ -1,5 +1,6 @@
-"""The temporally supported confidence (slamfront.core.temporal_support) and the nearest-neighbour
-detector's operating point on it."""
+"""The temporally supported confidence (slamfront.core.temporal_support) and the operating point
+on it of the nearest-neighbour detector (per frame) and of the faithful hierarchical detector
+(per sequence decision, opt-in)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,10 @@ from slamfront.core.temporal_support import (
     supported_confidence,
 )
 from slamfront.messages import LoopResult
+from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision, HierarchicalFaithful
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
+from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
+from tests.hierarchical_helpers import noisy, run_stages
 from tests.test_operating_point import _dusk_like, _feed_global
 
 
@@ -131,3 +135,80 @@ def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
                "recall_at_operating_point": 0.4, "accept_threshold": 5e-324, "accept_auto": 1, "n_accepted": 3,
                "accept_on_supported_confidence": 1}
     assert "(supported confidence > 0, calibrated)" in headline(metrics)[0]
+
+
+# --- the faithful detector: support counted in sequence decisions (opt-in) ------------------
+
+SUPPORTED = {"accept_score": "supported_confidence", "accept_query_null": False}
+
+
+def test_decisions_count_as_steps_not_frames() -> None:
+    """Sequence decisions ~12 query frames apart: per decision, 3 of the last 5 on one line
+    support each other; per frame, a 5-frame window would never reach the decision before."""
+    frames = np.arange(0, 96, 12)
+    matches = 300 + frames
+    confidence = np.full(len(frames), 0.7)
+    matches[5], confidence[5] = 40, 1.0  # one confident decision elsewhere
+    per_decision = supported_confidence(frames, matches, confidence, answers=5, agree=3, tolerance=2, per_step=True)
+    assert list(per_decision[:2]) == [0, 0]  # a revisit's first two decisions wait
+    assert per_decision[2] == per_decision[3] == per_decision[4] == pytest.approx(0.7)
+    assert per_decision[5] == 0  # confident, but nothing continues it
+    assert per_decision[6] == per_decision[7] == pytest.approx(0.7)  # 3 of the last 5 still on the line
+    assert not supported_confidence(frames, matches, confidence, answers=5, agree=3, tolerance=2).any()
+    tracker = SupportTracker(5, 3, 2, per_step=True)
+    assert [tracker.update(int(f), int(m), float(c)) for f, m, c in zip(frames, matches, confidence)] == \
+        pytest.approx(list(per_decision))
+
+
+def test_faithful_supported_decisions_are_accepted_at_dusk_and_are_right() -> None:
+    out, n = _dusk_like("hierarchical_faithful", 0.6, **SUPPORTED)
+    accepted = _accepted(out, n)
+    assert len(accepted) >= 200
+    assert sum(abs(r.match - (r.frame - n)) <= 3 for r in accepted) >= 0.95 * len(accepted)
+    assert [m.source for m in out if isinstance(m, AcceptThreshold)] == ["reference"]
+    # one score per decision: a decision's answered frames are accepted together
+    for d in (m for m in out if isinstance(m, FaithfulSequenceDecision) and m.query_frames[0] >= n):
+        flags = {r.accepted for r in out if isinstance(r, LoopResult) and r.frame in set(d.query_frames.tolist())
+                 and r.match >= 0}
+        assert len(flags) <= 1
+    # the answers' confidence (what R@100%P and AUC rank) is the one of the default
+    plain, _ = _dusk_like("hierarchical_faithful", 0.6, accept_query_null=False)
+    assert [m.confidence for m in out if isinstance(m, LoopResult)] == \
+        [m.confidence for m in plain if isinstance(m, LoopResult)]
+
+
+def _with_a_copied_stretch(**params: object) -> tuple[list, int]:
+    """A dusk-like route whose query frames 100-119 are exact copies of reference frames 220-239:
+    two confident (1 - v/2 = 1) decisions that nothing before them continues."""
+    rng = np.random.default_rng(0)
+    frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
+    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+    query = noisy(reference, 0.6, seed=4)
+    query[100:120] = reference[220:240]
+    vectors = np.concatenate([reference, query])
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    detector = HierarchicalFaithful(HierarchicalFaithful.Config(**params))
+    return run_stages(vectors, ["reference"] * 300 + ["query"] * 300, place_map, detector), 300
+
+
+def test_faithful_isolated_confident_wrong_decisions_are_not_accepted() -> None:
+    out, n = _with_a_copied_stretch(**SUPPORTED)
+    copied = [m for m in out if isinstance(m, LoopResult) and 100 <= m.frame - n < 120]
+    assert all(m.match >= 200 and m.confidence > 0.99 for m in copied)  # confident and wrong
+    assert not any(m.accepted for m in copied)
+    assert all(abs(r.match - (r.frame - n)) <= 3 for r in _accepted(out, n))
+    # on its own confidence (the default) they are accepted
+    plain, _ = _with_a_copied_stretch(accept_query_null=False)
+    assert all(m.accepted for m in plain if isinstance(m, LoopResult) and 100 <= m.frame - n < 120)
+
+
+def test_faithful_fixed_accept_and_default_compare_the_answers_own_confidence() -> None:
+    out, n = _dusk_like("hierarchical_faithful", 0.6, accept=0.7, **SUPPORTED)
+    results = [m for m in out if isinstance(m, LoopResult) and m.frame >= n and m.match >= 0]
+    assert [(m.source, m.threshold) for m in out if isinstance(m, AcceptThreshold)] == [("given", 0.7)]
+    assert results and all(r.accepted == (r.confidence >= 0.7) for r in results)
+    assert HierarchicalFaithful(HierarchicalFaithful.Config(accept=0.7, **SUPPORTED)).statistics()[
+        "accept_on_supported_confidence"] == 0
+    assert HierarchicalFaithful().statistics()["accept_on_supported_confidence"] == 0  # opt-in
+    assert HierarchicalFaithful(HierarchicalFaithful.Config(**SUPPORTED)).statistics()[
+        "accept_on_supported_confidence"] == 1

@@ -105,6 +105,10 @@ class SupportConfig(AcceptanceConfig):
         1.0, ge=0, description="supported_confidence: how far (map frames) an earlier answer may lie from the "
         "line through this one (slope +1 or -1: one map frame per query frame) and still agree"
     )
+    support_per: Literal["frame", "decision"] = Field(
+        "frame", description="supported_confidence: what support_answers and support_agree count: query frames, "
+        "or sequence decisions (detectors that answer a query sequence at once, one confidence for all its frames)"
+    )
 
     @model_validator(mode="after")
     def _agree_within_answers(self) -> SupportConfig:
@@ -135,7 +139,9 @@ class Acceptance:
         self.on_support = self.auto and getattr(config, "accept_score", "confidence") == "supported_confidence"
         """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
         self._tracker = (SupportTracker(config.support_answers, config.support_agree,  # type: ignore[attr-defined]
-                                        config.support_tolerance_frames) if self.on_support else None)
+                                        config.support_tolerance_frames,  # type: ignore[attr-defined]
+                                        per_step=config.support_per == "decision")  # type: ignore[attr-defined]
+                         if self.on_support else None)
         if not self.auto:
             self._outbox.append(AcceptThreshold(detector, float(self.threshold), False, "given", 0,  # type: ignore[arg-type]
                                                 float("nan"), float("nan")))
@@ -149,8 +155,10 @@ class Acceptance:
 
     def score(self, frame: int, match: int, confidence: float) -> float:
         """What the threshold is compared with for this answer (answers in time order): its
-        confidence, or with ``accept_score: supported_confidence`` its supported confidence."""
-        if self._tracker is None:
+        confidence, or with ``accept_score: supported_confidence`` its supported confidence
+        (``support_per: decision``: one call per sequence decision, ``match`` < 0 when it has
+        no answer)."""
+        if self._tracker is None or not self.on_support:
             return confidence
         return self._tracker.update(frame, match, confidence)
 
@@ -160,7 +168,8 @@ class Acceptance:
             return np.asarray(confidences, dtype=np.float64)
         c = self._config
         return supported_confidence(positions, matches, confidences, c.support_answers,  # type: ignore[attr-defined]
-                                    c.support_agree, c.support_tolerance_frames)  # type: ignore[attr-defined]
+                                    c.support_agree, c.support_tolerance_frames,  # type: ignore[attr-defined]
+                                    per_step=c.support_per == "decision")  # type: ignore[attr-defined]
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
         """Set the threshold from the confidences of answers known to be wrong."""

@@ -19,6 +19,12 @@ need not be the smallest: a weak answer in a confident run is supported by its r
 
 The price is latency: a revisit's first ``agree - 1`` frames cannot be supported yet (their
 answers are given, with their confidence, but not accepted).
+
+A detector that answers a whole query *sequence* at once (one confidence for all its frames)
+counts in sequence decisions instead (``per_step``/``steps``): each decision is one answer (a
+representative query frame and the map frame it is aligned with), the window is its last
+``answers`` decisions, and a decision is supported when earlier decisions continue it along
+the route (the next query stretch answered at the next map stretch, in the same direction).
 """
 
 from __future__ import annotations
@@ -38,10 +44,11 @@ def _check(answers: int, agree: int, tolerance: float) -> None:
 
 
 def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
-                    answers: int, agree: int, tolerance: float) -> float:
+                    answers: int, agree: int, tolerance: float, steps: np.ndarray | None = None) -> float:
     """The supported confidence of the *last* answer of ``frames``/``matches``/``confidences``
     (answers in time order; a match < 0 is no answer and supports nothing). Only earlier answers
-    fewer than ``answers`` frames before it count."""
+    fewer than ``answers`` frames before it count, or, given ``steps`` (each answer's count in
+    time, e.g. a sequence decision's number), fewer than ``answers`` steps before it."""
     _check(answers, agree, tolerance)
     f = np.asarray(frames, dtype=np.float64)
     m = np.asarray(matches, dtype=np.float64)
@@ -49,7 +56,8 @@ def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.nda
     if len(f) == 0 or m[-1] < 0:
         return 0.0
     gap = f[-1] - f[:-1]
-    earlier = (gap > 0) & (gap < answers) & (m[:-1] >= 0)
+    back = gap if steps is None else np.asarray(steps, dtype=np.float64)[-1] - np.asarray(steps, dtype=np.float64)[:-1]
+    earlier = (back > 0) & (back < answers) & (m[:-1] >= 0)
     best = 0.0
     for direction in (1.0, -1.0):
         on_line = earlier & (np.abs((m[:-1] - m[-1]) + direction * gap) <= tolerance)
@@ -60,17 +68,20 @@ def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.nda
 
 
 def supported_confidence(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
-                         answers: int, agree: int, tolerance: float) -> np.ndarray:
+                         answers: int, agree: int, tolerance: float, per_step: bool = False) -> np.ndarray:
     """(n,) the supported confidence of every answer (in time order) from the answers before it
-    (:func:`support_of_last` of each prefix)."""
+    (:func:`support_of_last` of each prefix). ``per_step``: ``answers`` counts answers (e.g.
+    sequence decisions, each one step), not query frames."""
     _check(answers, agree, tolerance)
     f = np.asarray(frames)
     m = np.asarray(matches)
     c = np.asarray(confidences)
+    steps = np.arange(len(f)) if per_step else None
     out = np.zeros(len(f))
     for i in range(len(f)):
         lo = max(0, i - answers + 1)
-        out[i] = support_of_last(f[lo:i + 1], m[lo:i + 1], c[lo:i + 1], answers, agree, tolerance)
+        out[i] = support_of_last(f[lo:i + 1], m[lo:i + 1], c[lo:i + 1], answers, agree, tolerance,
+                                 steps=None if steps is None else steps[lo:i + 1])
     return out
 
 
@@ -90,15 +101,18 @@ def contiguous_self_queries(n: int, window: int, most: int, run: int = 50) -> np
 
 
 class SupportTracker:
-    """:func:`support_of_last` online: the answers of the last ``answers`` frames are kept."""
+    """:func:`support_of_last` online: the last ``answers`` answers are kept (``per_step``: each
+    update is one step, e.g. one sequence decision; else ``answers`` counts query frames)."""
 
-    def __init__(self, answers: int, agree: int, tolerance: float) -> None:
+    def __init__(self, answers: int, agree: int, tolerance: float, per_step: bool = False) -> None:
         _check(answers, agree, tolerance)
         self._answers, self._agree, self._tolerance = answers, agree, tolerance
+        self._per_step = per_step
         self._recent: deque[tuple[int, int, float]] = deque(maxlen=answers)
 
     def update(self, frame: int, match: int, confidence: float) -> float:
         """The supported confidence of this answer (``match`` < 0: no answer, 0)."""
         self._recent.append((int(frame), int(match), float(confidence)))
         f, m, c = (np.array(column) for column in zip(*self._recent, strict=True))
-        return support_of_last(f, m, c, self._answers, self._agree, self._tolerance)
+        steps = np.arange(len(f)) if self._per_step else None
+        return support_of_last(f, m, c, self._answers, self._agree, self._tolerance, steps=steps)

@@ -41,6 +41,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field
 
+from slamfront.acceptance import SupportConfig
 from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_levels import (
     Dispatch,
@@ -122,7 +123,28 @@ class HierarchicalFaithful(PlaceSequenceDetector):
     branch_keys = ("consistent", "validated_by_next", "rebuilt", "unresolved", "synthetic_frames", "no_padding",
                    "leave_answer_out")
 
-    class Config(PlaceSequenceConfig):
+    class Config(PlaceSequenceConfig, SupportConfig):
+        accept_score: Literal["confidence", "supported_confidence"] = Field(
+            "confidence", description="accept: auto: the score thresholded; supported_confidence (opt-in): counted "
+            "in sequence decisions (support_per), the confidence that support_agree of the last support_answers "
+            "decisions reach while continuing this one along the route (the reference's wrong decisions scored the "
+            "same way calibrate it; answers keep their own confidence, 1 - v/2). Not the default: on rows it was "
+            "not designed on it let a chain of rebuilt sequences through (precision 0.911 on Nordland 563-1208, "
+            "docs/loop_closure.md). A given accept always compares the answer's own confidence"
+        )
+        support_per: Literal["frame", "decision"] = Field(
+            "decision", description="supported_confidence: what support_answers and support_agree count (decision: "
+            "level-3 calls, one confidence for a whole query sequence)"
+        )
+        support_answers: int = Field(5, ge=1, description="supported_confidence: sequence decisions looked back "
+                                     "over, this one included (chosen on Nordland chunks and synthetic worlds, "
+                                     "docs/loop_closure.md)")
+        support_agree: int = Field(3, ge=1, description="supported_confidence: decisions that must agree (this one "
+                                   "included); the first support_agree - 1 decisions of a revisit are not accepted")
+        support_tolerance_frames: float = Field(
+            2.0, ge=0, description="supported_confidence: how far (map frames) an earlier decision's aligned "
+            "frame may lie from the line through this one's (one map frame per query frame) and still agree"
+        )
         accept_query_null: bool = Field(
             False, description="accept: auto with a reference: let the queries' leave-the-answer-out null move the "
             "threshold down (acceptance.py; levels 1-3 again without the answer's stretch, about +60 % distances). "
@@ -169,6 +191,10 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._processed_speed = 1.0  # place speed of the last sequence sent to level 3 (a rebuild goes on at it)
         self._settled: list[float] = []  # place speeds of the last sequences answered as consistent or validated
         self._rebuilt = 0  # sequences rebuilt in a row
+        # per level-3 call: (query position, map position, confidence) of its middle answer
+        # (map position -1: no answer), and its frames: the supported confidence's decisions
+        self._points: list[tuple[int, int, float]] = []
+        self._point_frames: list[np.ndarray] = []
 
     # --- levels 1 and 2 -------------------------------------------------------------------
 
@@ -260,6 +286,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         )
         if dispatch.sequence is None:
             reason = "inconsistent with both neighbouring iterations and no earlier sequence to rebuild from"
+            self._decided(iteration.frames, None, 0.0)
             return [FaithfulSequenceDecision(**decision, reason=reason), *self._no_answer(iteration.frames, reason)]
         query = pm.vectors(iteration.frames)
         informative = pm.informative(iteration.frames)
@@ -282,13 +309,18 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         first, last = dispatch.sequence
         if match.reason:
             self._count("no_padding")
+            self._decided(iteration.frames, None, 0.0)
             return [FaithfulSequenceDecision(**decision, first=first, last=last, reason=match.reason),
                     *self._no_answer(iteration.frames, match.reason)]
         if match.used_synthetic:
             self._count("synthetic_frames")
         self._last_matched = int(match.aligned[-1])
         confidence = float(pm.similarity(match.mean_distance)) if np.isfinite(match.mean_distance) else 0.0
-        results = self._answers(iteration, match, informative, confidence)
+        answered = np.flatnonzero(informative)
+        score = self._decided(iteration.frames, None if not len(answered) else
+                              (int(answered[len(answered) // 2]), int(match.aligned[answered[len(answered) // 2]])),
+                              confidence)
+        results = self._answers(iteration, match, informative, confidence, score)
         if self._acceptance.wants_query_null and not self._stream:
             self._leave_answer_out(iteration, query, informative, match.aligned, speed)
         record = FaithfulSequenceDecision(
@@ -335,8 +367,29 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                     break
         self._query_null_distances[1] += self._distances - distances
 
+    def _decided(self, frames: np.ndarray, middle: tuple[int, int] | None, confidence: float) -> float:
+        """A level-3 call decided ``frames`` (``middle``: its middle answered frame's index in
+        ``frames`` and aligned map position; None: no answer): what the threshold compares its
+        answers with (:meth:`Acceptance.score`, one decision at a time)."""
+        if middle is None:
+            point = (self._query_position.get(int(frames[len(frames) // 2]), 0) if len(frames) else 0, -1, 0.0)
+        else:
+            point = (self._query_position[int(frames[middle[0]])], middle[1], confidence)
+        self._points.append(point)
+        self._point_frames.append(frames)
+        return self._acceptance.score(*point)
+
+    def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
+        """The calibration copy's decisions scored as the queries' are (supported confidence)."""
+        if not self._acceptance.on_support or not isinstance(copy, HierarchicalFaithful) or not copy._points:
+            return {}
+        q, m, c = (np.asarray(column) for column in zip(*copy._points, strict=True))
+        scores = self._acceptance.reference_scores(q, m, c)
+        return {int(f): float(s) for frames, s in zip(copy._point_frames, scores, strict=True) for f in frames}
+
     def _answers(
-        self, iteration: _Iteration, match: FrameMatch, informative: np.ndarray, confidence: float
+        self, iteration: _Iteration, match: FrameMatch, informative: np.ndarray, confidence: float,
+        score: float | None = None,
     ) -> list[LoopResult]:
         pm = self.place_map
         matched = pm.map_frames_at(match.aligned)
@@ -348,7 +401,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                 continue
             ranked = [int(matched[k]), *(int(a) for a in alternatives[k] if a != matched[k])]
             out.append(self._answer(frame, int(matched[k]), confidence,
-                                    np.asarray(ranked[: self.config.candidates], dtype=np.int64)))
+                                    np.asarray(ranked[: self.config.candidates], dtype=np.int64), score))
         return out
 
     def _alternatives(self, iteration: _Iteration, n: int) -> list[list[int]]:

@@ -207,10 +207,16 @@ class PlaceSequenceDetector(LoopDetector):
         out += copy._finish()
         # an answer within two windows of its frame may be the query's own stretch seen just
         # before: only those farther away are known to be wrong
-        wrong = [m.confidence for m in out if isinstance(m, LoopResult) and m.match >= 0
+        scores = self._reference_scores(copy)
+        wrong = [scores.get(m.frame, m.confidence) for m in out if isinstance(m, LoopResult) and m.match >= 0
                  and position[m.frame] - position.get(m.match, -n) > 2 * window]
         self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
         self._acceptance.calibrate(wrong, "reference")
+
+    def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
+        """accept: auto: what the threshold is compared with for the calibration copy's answers,
+        by frame, when it is not their confidence (a subclass's supported confidence)."""
+        return {}
 
     # --- level 1 --------------------------------------------------------------------------
 
@@ -260,11 +266,13 @@ class PlaceSequenceDetector(LoopDetector):
 
     # --- answers and bookkeeping -------------------------------------------------------------
 
-    def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray) -> LoopResult:
+    def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray,
+                score: float | None = None) -> LoopResult:
         """The one place an answer is accepted: at the operating point (in a stream, answers to
-        its first ``accept_calibration_frames`` frames calibrate it and are not accepted)."""
+        its first ``accept_calibration_frames`` frames calibrate it and are not accepted), on
+        ``score`` when given (paired traversals: :meth:`Acceptance.score`), else the confidence."""
         accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
-                    else self._acceptance.accepts(confidence))
+                    else self._acceptance.accepts(confidence if score is None else score))
         return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)
 
     def _featureless(self, frame: int) -> LoopResult:
