@@ -58,8 +58,7 @@ def run_chunks(work: Callable[[int, int], None], n: int, threads: int) -> None:
         work(0, n)
         return
     pieces = min(threads * CHUNKS_PER_THREAD, max(1, n // 4))
-    bounds = np.unique(np.linspace(0, n, pieces + 1).astype(int) // 4 * 4)
-    bounds = np.append(bounds[bounds < n], n) if bounds[-1] != n else bounds
+    bounds = np.unique(np.append(np.linspace(0, n, pieces + 1).astype(int) // 4 * 4, n))  # ends at n
     with ThreadPoolExecutor(min(threads, len(bounds) - 1)) as pool:
         for future in [pool.submit(work, int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]:
             future.result()
