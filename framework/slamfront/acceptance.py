@@ -136,12 +136,13 @@ class Acceptance:
         self._reference_median: float | None = None  # of the reference's wrong confidences (the shift rule)
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
-        self.on_support = self.auto and getattr(config, "accept_score", "confidence") == "supported_confidence"
+        self._support = (config if self.auto and isinstance(config, SupportConfig)
+                         and config.accept_score == "supported_confidence" else None)
+        self.on_support = self._support is not None
         """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
-        self._tracker = (SupportTracker(config.support_answers, config.support_agree,  # type: ignore[attr-defined]
-                                        config.support_tolerance_frames,  # type: ignore[attr-defined]
-                                        per_step=config.support_per == "decision")  # type: ignore[attr-defined]
-                         if self.on_support else None)
+        self._tracker = (None if self._support is None else SupportTracker(
+            self._support.support_answers, self._support.support_agree, self._support.support_tolerance_frames,
+            per_step=self._support.support_per == "decision"))
         if not self.auto:
             self._outbox.append(AcceptThreshold(detector, float(self.threshold), False, "given", 0,  # type: ignore[arg-type]
                                                 float("nan"), float("nan")))
@@ -164,12 +165,11 @@ class Acceptance:
 
     def reference_scores(self, positions: np.ndarray, matches: np.ndarray, confidences: np.ndarray) -> np.ndarray:
         """:meth:`score` of the reference's answers to itself (positions in time order), to calibrate on."""
-        if not self.on_support:
+        c = self._support
+        if c is None or not self.on_support:
             return np.asarray(confidences, dtype=np.float64)
-        c = self._config
-        return supported_confidence(positions, matches, confidences, c.support_answers,  # type: ignore[attr-defined]
-                                    c.support_agree, c.support_tolerance_frames,  # type: ignore[attr-defined]
-                                    per_step=c.support_per == "decision")  # type: ignore[attr-defined]
+        return supported_confidence(positions, matches, confidences, c.support_answers, c.support_agree,
+                                    c.support_tolerance_frames, per_step=c.support_per == "decision")
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
         """Set the threshold from the confidences of answers known to be wrong."""
