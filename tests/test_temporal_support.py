@@ -1,6 +1,6 @@
 """The temporally supported confidence (slamfront.core.temporal_support) and the operating point
 on it of the nearest-neighbour detector (per frame) and of the faithful hierarchical detector
-(per sequence decision, the default; rebuilt decisions lend support only when level 1 found them)."""
+(per sequence decision, opt-in; rebuilt decisions lend support only when level 1 found them)."""
 
 from __future__ import annotations
 
@@ -137,7 +137,7 @@ def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
     assert "(supported confidence > 0, calibrated)" in headline(metrics)[0]
 
 
-# --- the faithful detector: support counted in sequence decisions (the default) -------------
+# --- the faithful detector: support counted in sequence decisions (opt-in) ------------------
 
 SUPPORTED = {"accept_score": "supported_confidence", "accept_query_null": False}
 OWN = {"accept_score": "confidence", "accept_query_null": False}
@@ -229,7 +229,7 @@ def test_faithful_fixed_accept_and_default_compare_the_answers_own_confidence() 
     assert results and all(r.accepted == (r.confidence >= 0.7) for r in results)
     assert HierarchicalFaithful(HierarchicalFaithful.Config(accept=0.7, **SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 0
-    assert HierarchicalFaithful().statistics()["accept_on_supported_confidence"] == 1  # the default
+    assert HierarchicalFaithful().statistics()["accept_on_supported_confidence"] == 0  # opt-in
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**OWN)).statistics()["accept_on_supported_confidence"] == 0
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 1
