@@ -1,6 +1,6 @@
 """The temporally supported confidence (slamfront.core.temporal_support) and the operating point
 on it of the nearest-neighbour detector (per frame) and of the faithful hierarchical detector
-(per sequence decision, opt-in)."""
+(per sequence decision, opt-in; rebuilt decisions lend support only when level 1 found them)."""
 
 from __future__ import annotations
 
@@ -140,6 +140,26 @@ def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
 # --- the faithful detector: support counted in sequence decisions (opt-in) ------------------
 
 SUPPORTED = {"accept_score": "supported_confidence", "accept_query_null": False}
+OWN = {"accept_score": "confidence", "accept_query_null": False}
+
+
+def test_an_answer_that_may_not_supply_support_is_supported_but_supports_nothing() -> None:
+    """A chain: one decision found by the search, then decisions placed by continuing it (on its
+    line by construction). Lending support only from found ones, the chain is supported while two
+    found decisions are in the window, and no longer by itself."""
+    frames = np.arange(0, 96, 12)
+    matches = 300 + frames
+    confidence = np.full(len(frames), 0.7)
+    supplies = np.array([True, True, False, False, False, False, False, False])
+    every = supported_confidence(frames, matches, confidence, answers=5, agree=3, tolerance=2, per_step=True)
+    found = supported_confidence(frames, matches, confidence, answers=5, agree=3, tolerance=2, per_step=True,
+                                 supplies=supplies)
+    assert list(every[2:]) == pytest.approx([0.7] * 6)  # the chain supports itself
+    assert list(found[2:]) == pytest.approx([0.7, 0.7, 0.7, 0, 0, 0])  # until both found ones are 5 steps back
+    assert found[0] == found[1] == 0
+    tracker = SupportTracker(5, 3, 2, per_step=True)
+    assert [tracker.update(int(f), int(m), float(c), bool(s)) for f, m, c, s in
+            zip(frames, matches, confidence, supplies)] == pytest.approx(list(found))
 
 
 def test_decisions_count_as_steps_not_frames() -> None:
@@ -171,8 +191,8 @@ def test_faithful_supported_decisions_are_accepted_at_dusk_and_are_right() -> No
         flags = {r.accepted for r in out if isinstance(r, LoopResult) and r.frame in set(d.query_frames.tolist())
                  and r.match >= 0}
         assert len(flags) <= 1
-    # the answers' confidence (what R@100%P and AUC rank) is the one of the default
-    plain, _ = _dusk_like("hierarchical_faithful", 0.6, accept_query_null=False)
+    # the answers' confidence (what R@100%P and AUC rank) is the one of the answers' own operating point
+    plain, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN)
     assert [m.confidence for m in out if isinstance(m, LoopResult)] == \
         [m.confidence for m in plain if isinstance(m, LoopResult)]
 
@@ -197,8 +217,8 @@ def test_faithful_isolated_confident_wrong_decisions_are_not_accepted() -> None:
     assert all(m.match >= 200 and m.confidence > 0.99 for m in copied)  # confident and wrong
     assert not any(m.accepted for m in copied)
     assert all(abs(r.match - (r.frame - n)) <= 3 for r in _accepted(out, n))
-    # on its own confidence (the default) they are accepted
-    plain, _ = _with_a_copied_stretch(accept_query_null=False)
+    # on its own confidence they are accepted
+    plain, _ = _with_a_copied_stretch(**OWN)
     assert all(m.accepted for m in plain if isinstance(m, LoopResult) and 100 <= m.frame - n < 120)
 
 
@@ -210,5 +230,33 @@ def test_faithful_fixed_accept_and_default_compare_the_answers_own_confidence() 
     assert HierarchicalFaithful(HierarchicalFaithful.Config(accept=0.7, **SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 0
     assert HierarchicalFaithful().statistics()["accept_on_supported_confidence"] == 0  # opt-in
+    assert HierarchicalFaithful(HierarchicalFaithful.Config(**OWN)).statistics()["accept_on_supported_confidence"] == 0
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 1
+
+
+def test_faithful_rebuilt_decisions_lend_support_only_when_level_1_found_them() -> None:
+    """rebuilt_support: level1 (the default): a rebuilt decision lends support only when one of
+    level 1's candidate sequences ends within alpha places of its end; other decisions always do.
+    It changes which answers are accepted, never their confidence."""
+    detectors = {}
+    outs = {}
+    for mode in ("level1", "always"):
+        rng = np.random.default_rng(0)
+        frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
+        reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+        vectors = np.concatenate([reference, noisy(reference, 0.6, seed=4)])
+        place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+        detectors[mode] = HierarchicalFaithful(HierarchicalFaithful.Config(rebuilt_support=mode, **SUPPORTED))
+        outs[mode] = run_stages(vectors, ["reference"] * 300 + ["query"] * 300, place_map, detectors[mode])
+    decisions = [m for m in outs["level1"] if isinstance(m, FaithfulSequenceDecision) and m.query_frames[0] >= 300]
+    answered = [d for d in decisions if d.first >= 0 and not d.reason]
+    lends = [point[3] for point in detectors["level1"]._points if point[1] >= 0]
+    assert len(lends) == len(answered) and any(d.branch == "rebuilt" for d in answered)
+    alpha = HierarchicalFaithful.Config().alpha
+    expected = [d.branch != "rebuilt" or bool(np.any(np.abs(d.candidates[:, 1] - d.last) < alpha)) for d in answered]
+    assert lends == expected
+    assert not all(expected)  # some rebuilt decision was placed by continuation alone
+    assert all(point[3] for point in detectors["always"]._points if point[1] >= 0)
+    assert [m.confidence for m in outs["level1"] if isinstance(m, LoopResult)] == \
+        [m.confidence for m in outs["always"] if isinstance(m, LoopResult)]

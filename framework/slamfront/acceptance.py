@@ -154,22 +154,24 @@ class Acceptance:
     def accepts(self, confidence: float) -> bool:
         return self.threshold is not None and confidence >= self.threshold
 
-    def score(self, frame: int, match: int, confidence: float) -> float:
+    def score(self, frame: int, match: int, confidence: float, supplies: bool = True) -> float:
         """What the threshold is compared with for this answer (answers in time order): its
         confidence, or with ``accept_score: supported_confidence`` its supported confidence
         (``support_per: decision``: one call per sequence decision, ``match`` < 0 when it has
-        no answer)."""
+        no answer; ``supplies``: whether this answer may support later ones)."""
         if self._tracker is None or not self.on_support:
             return confidence
-        return self._tracker.update(frame, match, confidence)
+        return self._tracker.update(frame, match, confidence, supplies)
 
-    def reference_scores(self, positions: np.ndarray, matches: np.ndarray, confidences: np.ndarray) -> np.ndarray:
+    def reference_scores(self, positions: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
+                         supplies: np.ndarray | None = None) -> np.ndarray:
         """:meth:`score` of the reference's answers to itself (positions in time order), to calibrate on."""
         c = self._support
         if c is None or not self.on_support:
             return np.asarray(confidences, dtype=np.float64)
         return supported_confidence(positions, matches, confidences, c.support_answers, c.support_agree,
-                                    c.support_tolerance_frames, per_step=c.support_per == "decision")
+                                    c.support_tolerance_frames, per_step=c.support_per == "decision",
+                                    supplies=supplies)
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
         """Set the threshold from the confidences of answers known to be wrong."""

@@ -25,6 +25,12 @@ counts in sequence decisions instead (``per_step``/``steps``): each decision is 
 representative query frame and the map frame it is aligned with), the window is its last
 ``answers`` decisions, and a decision is supported when earlier decisions continue it along
 the route (the next query stretch answered at the next map stretch, in the same direction).
+
+Not every answer is evidence of where the route goes: one placed *by* the answers before it (a
+sequence rebuilt from the previous one and continued, as Rodrigues 2019's Alg. 3 does) lies on
+their line by construction, right or wrong. ``supplies`` says which answers may support later
+ones; an answer that may not is still supported by those that may (it inherits support, it
+cannot lend it), so a chain that only repeats itself is not its own support.
 """
 
 from __future__ import annotations
@@ -44,11 +50,13 @@ def _check(answers: int, agree: int, tolerance: float) -> None:
 
 
 def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
-                    answers: int, agree: int, tolerance: float, steps: np.ndarray | None = None) -> float:
+                    answers: int, agree: int, tolerance: float, steps: np.ndarray | None = None,
+                    supplies: np.ndarray | None = None) -> float:
     """The supported confidence of the *last* answer of ``frames``/``matches``/``confidences``
     (answers in time order; a match < 0 is no answer and supports nothing). Only earlier answers
     fewer than ``answers`` frames before it count, or, given ``steps`` (each answer's count in
-    time, e.g. a sequence decision's number), fewer than ``answers`` steps before it."""
+    time, e.g. a sequence decision's number), fewer than ``answers`` steps before it; given
+    ``supplies`` (bool per answer), only earlier answers marked True support it."""
     _check(answers, agree, tolerance)
     f = np.asarray(frames, dtype=np.float64)
     m = np.asarray(matches, dtype=np.float64)
@@ -58,6 +66,8 @@ def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.nda
     gap = f[-1] - f[:-1]
     back = gap if steps is None else np.asarray(steps, dtype=np.float64)[-1] - np.asarray(steps, dtype=np.float64)[:-1]
     earlier = (back > 0) & (back < answers) & (m[:-1] >= 0)
+    if supplies is not None:
+        earlier &= np.asarray(supplies, dtype=bool)[:-1]
     best = 0.0
     for direction in (1.0, -1.0):
         on_line = earlier & (np.abs((m[:-1] - m[-1]) + direction * gap) <= tolerance)
@@ -68,10 +78,12 @@ def support_of_last(frames: np.ndarray, matches: np.ndarray, confidences: np.nda
 
 
 def supported_confidence(frames: np.ndarray, matches: np.ndarray, confidences: np.ndarray,
-                         answers: int, agree: int, tolerance: float, per_step: bool = False) -> np.ndarray:
+                         answers: int, agree: int, tolerance: float, per_step: bool = False,
+                         supplies: np.ndarray | None = None) -> np.ndarray:
     """(n,) the supported confidence of every answer (in time order) from the answers before it
     (:func:`support_of_last` of each prefix). ``per_step``: ``answers`` counts answers (e.g.
-    sequence decisions, each one step), not query frames."""
+    sequence decisions, each one step), not query frames; ``supplies``: which answers may
+    support later ones (None: all)."""
     _check(answers, agree, tolerance)
     f = np.asarray(frames)
     m = np.asarray(matches)
@@ -81,7 +93,8 @@ def supported_confidence(frames: np.ndarray, matches: np.ndarray, confidences: n
     for i in range(len(f)):
         lo = max(0, i - answers + 1)
         out[i] = support_of_last(f[lo:i + 1], m[lo:i + 1], c[lo:i + 1], answers, agree, tolerance,
-                                 steps=None if steps is None else steps[lo:i + 1])
+                                 steps=None if steps is None else steps[lo:i + 1],
+                                 supplies=None if supplies is None else np.asarray(supplies)[lo:i + 1])
     return out
 
 
@@ -108,11 +121,12 @@ class SupportTracker:
         _check(answers, agree, tolerance)
         self._answers, self._agree, self._tolerance = answers, agree, tolerance
         self._per_step = per_step
-        self._recent: deque[tuple[int, int, float]] = deque(maxlen=answers)
+        self._recent: deque[tuple[int, int, float, bool]] = deque(maxlen=answers)
 
-    def update(self, frame: int, match: int, confidence: float) -> float:
-        """The supported confidence of this answer (``match`` < 0: no answer, 0)."""
-        self._recent.append((int(frame), int(match), float(confidence)))
-        f, m, c = (np.array(column) for column in zip(*self._recent, strict=True))
+    def update(self, frame: int, match: int, confidence: float, supplies: bool = True) -> float:
+        """The supported confidence of this answer (``match`` < 0: no answer, 0); ``supplies``:
+        whether it may support later answers."""
+        self._recent.append((int(frame), int(match), float(confidence), bool(supplies)))
+        f, m, c, s = (np.array(column) for column in zip(*self._recent, strict=True))
         steps = np.arange(len(f)) if self._per_step else None
-        return support_of_last(f, m, c, self._answers, self._agree, self._tolerance, steps=steps)
+        return support_of_last(f, m, c, self._answers, self._agree, self._tolerance, steps=steps, supplies=s)

@@ -127,10 +127,18 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         accept_score: Literal["confidence", "supported_confidence"] = Field(
             "confidence", description="accept: auto: the score thresholded; supported_confidence (opt-in): counted "
             "in sequence decisions (support_per), the confidence that support_agree of the last support_answers "
-            "decisions reach while continuing this one along the route (the reference's wrong decisions scored the "
-            "same way calibrate it; answers keep their own confidence, 1 - v/2). Not the default: on rows it was "
-            "not designed on it let a chain of rebuilt sequences through (precision 0.911 on Nordland 563-1208, "
-            "docs/loop_closure.md). A given accept always compares the answer's own confidence"
+            "decisions reach while continuing this one along the route, a rebuilt decision lending support only "
+            "as rebuilt_support says (the reference's wrong decisions scored the same way calibrate it; answers "
+            "keep their own confidence, 1 - v/2). Not the default: on rows it was not designed on it met the "
+            "recall rule on all but one but accepted 7 % wrong answers on Nordland frames 0-2899 "
+            "(docs/loop_closure.md). A given accept always compares the answer's own confidence"
+        )
+        rebuilt_support: Literal["always", "level1"] = Field(
+            "level1", description="supported_confidence: when a rebuilt decision (Alg. 3: placed by continuing "
+            "the previous one, so on its line by construction) may support later decisions: always, or level1: "
+            "only when one of level 1's candidate sequences ends within alpha places of its end (the search, "
+            "not only the continuation, found it); it is supported either way. always let a chain of rebuilt "
+            "sequences support itself (precision 0.911 on Nordland 563-1208, docs/loop_closure.md)"
         )
         support_per: Literal["frame", "decision"] = Field(
             "decision", description="supported_confidence: what support_answers and support_agree count (decision: "
@@ -192,8 +200,9 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._settled: list[float] = []  # place speeds of the last sequences answered as consistent or validated
         self._rebuilt = 0  # sequences rebuilt in a row
         # per level-3 call: (query position, map position, confidence) of its middle answer
-        # (map position -1: no answer), and its frames: the supported confidence's decisions
-        self._points: list[tuple[int, int, float]] = []
+        # (map position -1: no answer), whether it may support later ones, and its frames: the
+        # supported confidence's decisions
+        self._points: list[tuple[int, int, float, bool]] = []
         self._point_frames: list[np.ndarray] = []
 
     # --- levels 1 and 2 -------------------------------------------------------------------
@@ -319,7 +328,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         answered = np.flatnonzero(informative)
         score = self._decided(iteration.frames, None if not len(answered) else
                               (int(answered[len(answered) // 2]), int(match.aligned[answered[len(answered) // 2]])),
-                              confidence)
+                              confidence, self._lends_support(dispatch, iteration))
         results = self._answers(iteration, match, informative, confidence, score)
         if self._acceptance.wants_query_null and not self._stream:
             self._leave_answer_out(iteration, query, informative, match.aligned, speed)
@@ -367,14 +376,26 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                     break
         self._query_null_distances[1] += self._distances - distances
 
-    def _decided(self, frames: np.ndarray, middle: tuple[int, int] | None, confidence: float) -> float:
+    def _lends_support(self, dispatch: Dispatch, iteration: _Iteration) -> bool:
+        """Whether this decision may support later ones (``rebuilt_support``): a rebuilt sequence
+        continues the previous one by construction, so it is evidence of where the route goes only
+        when level 1 found it too: one of its candidate sequences ends within alpha places of the
+        rebuilt one's end (Alg. 3's consistency tolerance)."""
+        if dispatch.branch != "rebuilt" or self.config.rebuilt_support == "always" or dispatch.sequence is None:
+            return True
+        end = dispatch.sequence[1]
+        return any(abs(last - end) < self.config.alpha for _, last in iteration.candidates)
+
+    def _decided(self, frames: np.ndarray, middle: tuple[int, int] | None, confidence: float,
+                 supplies: bool = True) -> float:
         """A level-3 call decided ``frames`` (``middle``: its middle answered frame's index in
-        ``frames`` and aligned map position; None: no answer): what the threshold compares its
-        answers with (:meth:`Acceptance.score`, one decision at a time)."""
+        ``frames`` and aligned map position; None: no answer; ``supplies``: it may support later
+        decisions): what the threshold compares its answers with (:meth:`Acceptance.score`, one
+        decision at a time)."""
         if middle is None:
-            point = (self._query_position.get(int(frames[len(frames) // 2]), 0) if len(frames) else 0, -1, 0.0)
+            point = (self._query_position.get(int(frames[len(frames) // 2]), 0) if len(frames) else 0, -1, 0.0, False)
         else:
-            point = (self._query_position[int(frames[middle[0]])], middle[1], confidence)
+            point = (self._query_position[int(frames[middle[0]])], middle[1], confidence, supplies)
         self._points.append(point)
         self._point_frames.append(frames)
         return self._acceptance.score(*point)
@@ -383,8 +404,8 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         """The calibration copy's decisions scored as the queries' are (supported confidence)."""
         if not self._acceptance.on_support or not isinstance(copy, HierarchicalFaithful) or not copy._points:
             return {}
-        q, m, c = (np.asarray(column) for column in zip(*copy._points, strict=True))
-        scores = self._acceptance.reference_scores(q, m, c)
+        q, m, c, lends = (np.asarray(column) for column in zip(*copy._points, strict=True))
+        scores = self._acceptance.reference_scores(q, m, c, lends)
         return {int(f): float(s) for frames, s in zip(copy._point_frames, scores, strict=True) for f in frames}
 
     def _answers(
