@@ -251,3 +251,34 @@ def test_solver_options_say_what_pydantic_says_in_a_back_end_config(options: dic
         GtsamPoseGraph.Config(solver=options)
     assert str(direct.value).split(": ", 1)[-1] in in_config.value.errors()[0]["msg"]
     assert GtsamPoseGraph.Config(solver={"max_iterations": "7"}).solver == SolverOptions(max_iterations=7)
+
+
+def _ring_with_vertices(path: Path) -> Path:
+    from slamfront.core.posegraph import compose_initial_poses
+
+    graph = ring_graph()
+    path.write_text(format_g2o(graph, compose_initial_poses(graph)))  # vertex lines, then edges
+    return path
+
+
+def test_a_file_changed_after_reading_is_not_read_again_by_gtsam(tmp_path: Path) -> None:
+    from slamfront.posegraph.io import read_graph
+    from slamfront.posegraph.solver import prepare, read_problem
+
+    path = _ring_with_vertices(tmp_path / "ring.g2o")
+    parsed = read_graph(path).parsed
+    assert parsed.plain_g2o
+    initial = prepare(parsed.graph)[0]
+    assert read_problem(path, parsed.graph, initial) is not None
+    expected = optimize(parsed.graph)
+    lines = path.read_text().splitlines()
+    for changed in (
+        [*lines[:3], "VERTEX_SE2 3 100 100 0", *lines[4:]],  # a vertex moved
+        [*lines[:-1], lines[-1].rsplit(" ", 1)[0] + " 7"],  # an information entry
+        [*lines, "EDGE_SE2 0 5 1 0 0 1 0 0 1 0 1"],  # one more edge
+        ["VERTEX_SE2 0 0 0 0"],  # not the graph at all
+    ):
+        path.write_text("\n".join(changed) + "\n")
+        assert read_problem(path, parsed.graph, initial) is None
+        result = optimize(parsed.graph, SolverOptions(), path)  # the graph as read, built in Python
+        assert result.cost_after == pytest.approx(expected.cost_after, rel=1e-9, abs=1e-12)

@@ -69,7 +69,7 @@ def optimize_file(
     loaded = read_graph(graph_path, graph_format)
     graph = loaded.parsed.graph
     truth = read_ground_truth(ground_truth, graph) if ground_truth is not None else loaded.ground_truth
-    result = optimize(graph, options)
+    result = optimize(graph, options, Path(graph_path) if loaded.parsed.plain_g2o else None)
     d = graph.dim
     metrics: dict[str, Any] = {
         "graph": str(graph_path),
