@@ -240,7 +240,8 @@ def _parse_regular(lines: list[str], name: str, graph_format: GraphFormat) -> Pa
             raise _Irregular from None
         if values.shape != (len(rests), record.n_numbers) or np.any(ids < -_MAX_ID):  # -2**63 fits int64, not the range
             raise _Irregular
-        plain_ids = plain_ids and all(t.isdigit() and t.isascii() for t in id_tokens)
+        joined = "".join(id_tokens)
+        plain_ids = plain_ids and joined.isascii() and joined.isdigit()
         tables[tag] = (np.asarray(numbers, dtype=np.int64), ids.reshape(len(rests), n_ids), values)
     parsed = _finish(tables, fixed, skipped, families, dims, graph_format, name)
     plain = plain_ids and not (commented or fixed or skipped) and parsed.format == "g2o" and parsed.graph.poses is not None

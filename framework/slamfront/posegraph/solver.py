@@ -401,7 +401,7 @@ def read_problem(path: Path, graph: PoseGraph, initial: np.ndarray) -> tuple[gts
     if not np.allclose(poses_from_values(values, graph.dim), initial, rtol=0.0, atol=1e-9):
         return None
     information = graph.information if graph.dim == 2 else graph.information[:, _ROTATION_FIRST][:, :, _ROTATION_FIRST]
-    for edge in np.unique(np.linspace(0, graph.n_edges - 1, 16).astype(np.int64)).tolist():
+    for edge in sorted(set(np.linspace(0, graph.n_edges - 1, 16).astype(np.int64).tolist())):  # np.unique imports numpy.ma
         factor = factor_graph.at(edge)
         keys = [int(k) for k in factor.keys()]
         if keys != [int(graph.sources[edge]), int(graph.targets[edge])]:
