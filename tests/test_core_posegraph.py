@@ -236,7 +236,7 @@ def test_spellings_only_python_reads_go_to_the_line_by_line_reader() -> None:
 @pytest.mark.parametrize(
     ("extra", "plain"),
     [([], True), (["# a comment"], False), (["FIX 0"], False), (["LANDMARK 1 7 2 3 1 0 1"], False),
-     (["VERTEX_SE2 +2 2 0 0", "EDGE_SE2 1 2 1 0 0 1 0 0 1 0 1"], False)],
+     (["VERTEX_SE2 1_0 2 0 0", "EDGE_SE2 1 10 1 0 0 1 0 0 1 0 1"], False)],  # Python's int, not numpy's
 )
 def test_plain_g2o_files_are_told_apart(extra: list[str], plain: bool) -> None:
     # plain: only what GTSAM's readG2o reads the same way (the solver still checks it did)
