@@ -282,3 +282,7 @@ def test_a_file_changed_after_reading_is_not_read_again_by_gtsam(tmp_path: Path)
         assert read_problem(path, parsed.graph, initial) is None
         result = optimize(parsed.graph, SolverOptions(), path)  # the graph as read, built in Python
         assert result.cost_after == pytest.approx(expected.cost_after, rel=1e-9, abs=1e-12)
+    path.unlink()  # gone (GTSAM raises) or a folder (GTSAM reads nothing)
+    assert read_problem(path, parsed.graph, initial) is None
+    path.mkdir()
+    assert read_problem(path, parsed.graph, initial) is None

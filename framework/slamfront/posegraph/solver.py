@@ -392,7 +392,7 @@ def read_problem(path: Path, graph: PoseGraph, initial: np.ndarray) -> tuple[gts
     else (other counts, other vertices, or other edges among a sample of them)."""
     try:
         factor_graph, values = gtsam.readG2o(str(path), graph.dim == 3)
-    except RuntimeError:
+    except (RuntimeError, ValueError, IndexError):  # GTSAM's exceptions as pybind11 maps them; ours built it
         return None
     if factor_graph.size() != graph.n_edges or values.size() != graph.n_vertices:
         return None
