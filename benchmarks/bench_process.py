@@ -8,7 +8,7 @@ on the same machine under the same load:
    plugins), frame loop (frames, stages, their `finish`, logging), evaluation (metrics
    and their plots), log close, report (metrics.json, report.md), and the rest
    (interpreter start and exit); evaluation as a share of the frame loop;
-2. `slamfront optimize` (default options, which write before_after.png, and
+2. `slamfront optimize` (default options, which write before_after.svg, and
    `--no-plots`) against a plain GTSAM script that does the same read +
    Levenberg-Marquardt + writing of the optimised graph and a TUM trajectory, on M3500
    and sphere2500, with the relative difference of their final costs;
@@ -289,10 +289,11 @@ def main() -> None:
         "## `slamfront optimize` against a plain GTSAM script" if optimize else "",
         table(headers, optimize) if optimize else "",
         "Peer: `gtsam.readG2o`, a gauge prior, Levenberg-Marquardt (GTSAM's defaults, 100 iterations at most), "
-        "`gtsam.writeG2o` and a TUM file. `slamfront optimize` also checks the graph (line-numbered errors, "
-        "connectivity, positive-definite information), writes initial.tum, metrics.json and report.md, and by "
-        "default before_after.png (drawn with Pillow). *Cost difference*: relative difference of the two final "
-        "costs." if optimize else "",
+        "`gtsam.writeG2o` and a TUM file. `slamfront optimize` first checks the graph with its own reader "
+        "(line-numbered errors, connectivity, positive-definite information), then has `gtsam.readG2o` build the "
+        "problem from a plain g2o file (as the script does), and writes initial.tum, metrics.json and report.md, "
+        "and by default before_after.svg (SVG text, no imaging library). *Cost difference*: relative difference "
+        "of the two final costs." if optimize else "",
         "## Against other peers" if peers else "",
         table(headers, peers) if peers else "",
         "`evo_ape tum GT EST -a --t_max_diff 0.01` for `eval traj --max-difference 0.01` (which also computes "

@@ -218,3 +218,28 @@ def test_the_fast_reader_and_the_line_by_line_reader_agree() -> None:
                       text + ["EDGE_SE2 0 1.5 1 0 0 1 0 0 1 0 1"], text + ["FIX a"]):
         with pytest.raises(graph_files._Irregular):
             graph_files._parse_regular(irregular, "g.g2o", "auto")
+
+
+def test_spellings_only_python_reads_go_to_the_line_by_line_reader() -> None:
+    from slamfront.core import graph_files
+
+    # Python's float and int take "1_0" (and other digits than ASCII); numpy's decimal reader
+    # does not: the fast reader hands over, and the numbers are Python's
+    for odd in ("1_0", "\u0661"):
+        text = ["VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0", f"EDGE_SE2 0 1 {odd} 0 0 1 0 0 1 0 1"]
+        with pytest.raises(graph_files._Irregular):
+            graph_files._parse_regular(text, "g.g2o", "auto")
+        parsed = parse_graph(text, "g.g2o")
+        assert parsed.graph.measurements[0, 0, 2] == float(odd) and not parsed.plain_g2o
+
+
+@pytest.mark.parametrize(
+    ("extra", "plain"),
+    [([], True), (["# a comment"], False), (["FIX 0"], False), (["LANDMARK 1 7 2 3 1 0 1"], False),
+     (["VERTEX_SE2 1_0 2 0 0", "EDGE_SE2 1 10 1 0 0 1 0 0 1 0 1"], False)],  # Python's int, not numpy's
+)
+def test_plain_g2o_files_are_told_apart(extra: list[str], plain: bool) -> None:
+    # plain: only what GTSAM's readG2o reads the same way (the solver still checks it did)
+    text = ["VERTEX_SE2 0 0 0 0", "VERTEX_SE2 1 1 0 0", "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1", *extra]
+    assert parse_graph(text, "g.g2o").plain_g2o is plain
+    assert not parse_graph(SQUARE_2D.splitlines()[1:], "edges only").plain_g2o  # no vertex lines: composed odometry

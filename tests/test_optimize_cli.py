@@ -46,7 +46,7 @@ def test_optimize_writes_every_output(cli, ring_file: Path, tmp_path: Path) -> N
     trajectory = read_tum(out / "trajectory.tum")
     np.testing.assert_allclose(geometry.planar_to_spatial(optimised.poses), trajectory.poses, atol=1e-9)
     assert ate_rmse(trajectory.positions[:, :2], ring_truth()[:, :2, 2]) == pytest.approx(metrics["ate_rmse_after_m"], rel=1e-6)
-    assert (out / "before_after.png").stat().st_size > 0 and "before_after.png" in (out / "report.md").read_text()
+    assert (out / "before_after.svg").stat().st_size > 0 and "(before_after.svg)" in (out / "report.md").read_text()
 
 
 def test_ground_truth_as_xytheta_lines_or_a_noise_free_graph(cli, ring_file: Path, tmp_path: Path) -> None:
@@ -210,22 +210,22 @@ def test_trajectory_files_by_column_count(tmp_path: Path) -> None:
 def test_a_failed_plot_fails_the_command_and_keeps_the_results(cli, ring_file: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     assert cli("optimize", ring_file, "-o", out)[0] == 0
-    (out / "before_after.png.tmp").mkdir()  # the plot's temporary file cannot be written
+    (out / "before_after.svg.tmp").mkdir()  # the plot's temporary file cannot be written
     code, stdout, err = cli("optimize", ring_file, "-o", out)
     assert code == 1 and "cost:" in stdout  # the results are shown ...
-    assert "before_after.png: the plot failed" in err.strip().splitlines()[-1]  # ... and the failure said last
-    assert not (out / "before_after.png").exists()  # no plot of the previous run beside these results
+    assert "before_after.svg: the plot failed" in err.strip().splitlines()[-1]  # ... and the failure said last
+    assert not (out / "before_after.svg").exists()  # no plot of the previous run beside these results
     assert "The plot failed" in (out / "report.md").read_text()
     assert "the plot failed" in json.loads((out / "metrics.json").read_text())["plot_failed"]
     assert (out / "optimized.g2o").stat().st_size > 0 and (out / "trajectory.tum").stat().st_size > 0
 
 
 def test_optimize_imports_no_library_it_does_not_use(ring_file: Path, tmp_path: Path) -> None:
-    # the plot is Pillow's; pydantic, matplotlib and the vision libraries stay out of the process
+    # the plot is SVG text: Pillow, pydantic, matplotlib and the vision libraries stay out of the process
     import subprocess
     import sys
 
-    heavy = ("matplotlib", "pydantic", "cv2", "open3d", "scipy", "numba", "mcap")
+    heavy = ("matplotlib", "PIL", "pydantic", "cv2", "open3d", "scipy", "numba", "mcap")
     code = (
         "import sys; from slamfront.cli import main; "
         f"assert main(['optimize', {str(ring_file)!r}, '-o', {str(tmp_path / 'o')!r}]) == 0; "
@@ -251,3 +251,38 @@ def test_solver_options_say_what_pydantic_says_in_a_back_end_config(options: dic
         GtsamPoseGraph.Config(solver=options)
     assert str(direct.value).split(": ", 1)[-1] in in_config.value.errors()[0]["msg"]
     assert GtsamPoseGraph.Config(solver={"max_iterations": "7"}).solver == SolverOptions(max_iterations=7)
+
+
+def _ring_with_vertices(path: Path) -> Path:
+    from slamfront.core.posegraph import compose_initial_poses
+
+    graph = ring_graph()
+    path.write_text(format_g2o(graph, compose_initial_poses(graph)))  # vertex lines, then edges
+    return path
+
+
+def test_a_file_changed_after_reading_is_not_read_again_by_gtsam(tmp_path: Path) -> None:
+    from slamfront.posegraph.io import read_graph
+    from slamfront.posegraph.solver import prepare, read_problem
+
+    path = _ring_with_vertices(tmp_path / "ring.g2o")
+    parsed = read_graph(path).parsed
+    assert parsed.plain_g2o
+    initial = prepare(parsed.graph)[0]
+    assert read_problem(path, parsed.graph, initial) is not None
+    expected = optimize(parsed.graph)
+    lines = path.read_text().splitlines()
+    for changed in (
+        [*lines[:3], "VERTEX_SE2 3 100 100 0", *lines[4:]],  # a vertex moved
+        [*lines[:-1], lines[-1].rsplit(" ", 1)[0] + " 7"],  # an information entry
+        [*lines, "EDGE_SE2 0 5 1 0 0 1 0 0 1 0 1"],  # one more edge
+        ["VERTEX_SE2 0 0 0 0"],  # not the graph at all
+    ):
+        path.write_text("\n".join(changed) + "\n")
+        assert read_problem(path, parsed.graph, initial) is None
+        result = optimize(parsed.graph, SolverOptions(), path)  # the graph as read, built in Python
+        assert result.cost_after == pytest.approx(expected.cost_after, rel=1e-9, abs=1e-12)
+    path.unlink()  # gone (GTSAM raises) or a folder (GTSAM reads nothing)
+    assert read_problem(path, parsed.graph, initial) is None
+    path.mkdir()
+    assert read_problem(path, parsed.graph, initial) is None

@@ -22,7 +22,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         description=(
             "Optimise a pose graph with GTSAM and write DIR/metrics.json (cost_before, cost_after, iterations, "
             "seconds, and ate_rmse_before_m / ate_rmse_after_m with ground truth), DIR/optimized.g2o, "
-            "DIR/trajectory.tum, DIR/report.md and DIR/before_after.png. "
+            "DIR/trajectory.tum, DIR/report.md and DIR/before_after.svg. "
             f"Kernels: none, gnc (graduated non-convexity), {kernels}."
         ),
     )
@@ -43,7 +43,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--max-iterations", type=int, default=100, help="Levenberg-Marquardt iteration limit")
     parser.add_argument("--ground-truth", type=Path, metavar="FILE",
                         help="true poses: TUM or 'x y theta' lines, or a noise-free graph (odometry is composed)")
-    parser.add_argument("--no-plots", action="store_true", help="skip before_after.png")
+    parser.add_argument("--no-plots", action="store_true", help="skip before_after.svg")
     parser.set_defaults(handler=run)
 
 

@@ -40,7 +40,8 @@ def before_after(
     Estimates are aligned to the ground truth (as for the ATE) so they overlay it; loop
     closures ``loops`` (L, 2) vertex positions are drawn as lines on every panel, with
     their count in the legend. The view is the plane the trajectory spreads in most.
-    Drawn with Pillow (:mod:`slamfront.report.trajectory_figure`: matplotlib's import
+    Written as SVG when ``path`` ends in ``.svg`` (no imaging library), else as a PNG
+    drawn with Pillow (:mod:`slamfront.report.trajectory_figure`: matplotlib's import
     alone costs more than optimising a graph of a few thousand poses).
     """
     shown = {name: aligned_to(points, ground_truth) for name, points in panels.items()}

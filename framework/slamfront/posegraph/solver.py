@@ -19,6 +19,7 @@ import time
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
@@ -353,9 +354,14 @@ def _solve(graph_name: str, work: Callable[[], Any]) -> Any:
         raise DataError(f"{graph_name}: GTSAM could not solve the graph: {first}") from None
 
 
-def optimize(graph: PoseGraph, options: SolverOptions | None = None) -> OptimizationResult:
+def optimize(graph: PoseGraph, options: SolverOptions | None = None, g2o_file: Path | None = None) -> OptimizationResult:
     """Optimise ``graph`` as ``options`` say (batch LM, GNC or iSAM2).
 
+    :param g2o_file: a g2o file holding exactly ``graph``, as checked by our reader
+        (:attr:`~slamfront.core.graph_files.ParsedGraph.plain_g2o`): batch LM without a
+        kernel then has GTSAM's C++ ``readG2o`` build the problem from it (the same
+        factors as :func:`build_factor_graph`, in half the time), after checking it read
+        the same vertices and edges; anything else builds it from ``graph``.
     :raises DataError: the graph cannot be optimised (disconnected, degenerate).
     """
     options = options or SolverOptions()
@@ -363,7 +369,7 @@ def optimize(graph: PoseGraph, options: SolverOptions | None = None) -> Optimiza
         return _optimize_isam2(graph, options)
     if options.kernel == "gnc":
         return _optimize_gnc(graph, options)
-    return _optimize_lm(graph, options)
+    return _optimize_lm(graph, options, g2o_file if options.kernel == "none" else None)
 
 
 def _lm(
@@ -380,11 +386,44 @@ def _lm(
     return solution, iterations, iterations < options.max_iterations and not gave_up
 
 
-def _optimize_lm(graph: PoseGraph, options: SolverOptions) -> OptimizationResult:
+def read_problem(path: Path, graph: PoseGraph, initial: np.ndarray) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
+    """GTSAM's ``readG2o`` of a file our reader made ``graph`` of: the between-factors of
+    every edge in file order and the initial values, or None when GTSAM read something
+    else (other counts, other vertices, or other edges among a sample of them)."""
+    try:
+        factor_graph, values = gtsam.readG2o(str(path), graph.dim == 3)
+    except (RuntimeError, ValueError, IndexError):  # GTSAM's exceptions as pybind11 maps them; ours built it
+        return None
+    if factor_graph.size() != graph.n_edges or values.size() != graph.n_vertices:
+        return None
+    if not np.array_equal(np.asarray(values.keys(), dtype=np.int64), graph.ids):  # Values iterate in key order
+        return None
+    if not np.allclose(poses_from_values(values, graph.dim), initial, rtol=0.0, atol=1e-9):
+        return None
+    information = graph.information if graph.dim == 2 else graph.information[:, _ROTATION_FIRST][:, :, _ROTATION_FIRST]
+    for edge in sorted(set(np.linspace(0, graph.n_edges - 1, 16).astype(np.int64).tolist())):  # np.unique imports numpy.ma
+        factor = factor_graph.at(edge)
+        keys = [int(k) for k in factor.keys()]
+        if keys != [int(graph.sources[edge]), int(graph.targets[edge])]:
+            return None
+        if not np.allclose(factor.measured().matrix(), graph.measurements[edge], rtol=0.0, atol=1e-9):
+            return None
+        if not np.allclose(factor.noiseModel().information(), information[edge], rtol=1e-9, atol=1e-9):
+            return None
+    return factor_graph, values
+
+
+def _optimize_lm(graph: PoseGraph, options: SolverOptions, g2o_file: Path | None = None) -> OptimizationResult:
     initial, anchors = prepare(graph)
     started = time.perf_counter()
-    factor_graph, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust_mask(graph, options))
-    values = to_values(graph.ids, initial)
+    problem = read_problem(g2o_file, graph, initial) if g2o_file is not None else None
+    if problem is not None:
+        factor_graph, values = problem
+        for key, pose in anchors.items():
+            factor_graph.add(prior_factor(graph.dim, key, pose))
+    else:
+        factor_graph, _ = build_factor_graph(graph, anchors, options.kernel, options.parameter(), robust_mask(graph, options))
+        values = to_values(graph.ids, initial)
     solution, iterations, converged = _lm(graph.name, factor_graph, values, options)
     return OptimizationResult(
         poses=poses_from_values(solution, graph.dim),

@@ -3,7 +3,7 @@
 Outputs in the chosen folder: ``metrics.json``, ``optimized.g2o`` (the graph with the
 optimised poses as vertices), ``trajectory.tum`` and ``initial.tum`` (timestamps are the
 frames' times when the input is a run log, else vertex ids), ``report.md`` and
-``before_after.png``.
+``before_after.svg``.
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def optimize_file(
     loaded = read_graph(graph_path, graph_format)
     graph = loaded.parsed.graph
     truth = read_ground_truth(ground_truth, graph) if ground_truth is not None else loaded.ground_truth
-    result = optimize(graph, options)
+    result = optimize(graph, options, Path(graph_path) if loaded.parsed.plain_g2o else None)
     d = graph.dim
     metrics: dict[str, Any] = {
         "graph": str(graph_path),
@@ -97,12 +97,12 @@ def optimize_file(
         figures, plot_failure = [], ""
         if plots:
             try:
-                figures.append(_plot(out_dir / "before_after.png", graph_path, graph, result, truth, options))
+                figures.append(_plot(out_dir / "before_after.svg", graph_path, graph, result, truth, options))
             except Exception as exc:  # noqa: BLE001 - the results stand; the failure is reported, never hidden
-                plot_failure = f"before_after.png: the plot failed: {type(exc).__name__}: {exc}"
+                plot_failure = f"before_after.svg: the plot failed: {type(exc).__name__}: {exc}"
                 metrics["plot_failed"] = plot_failure
                 with contextlib.suppress(OSError):  # an older run's plot must not sit beside these results
-                    (out_dir / "before_after.png").unlink(missing_ok=True)
+                    (out_dir / "before_after.svg").unlink(missing_ok=True)
         files += figures
         markdown = [
             f"# Pose-graph optimisation: {Path(graph_path).name}",
