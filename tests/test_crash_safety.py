@@ -214,3 +214,46 @@ def test_a_damaged_chunk_is_skipped_and_reading_goes_on(small_chunked_log: Path,
     *kept, _note = [m.data for m in read_messages(tmp_path / "fixed_whole.mcap")]
     assert recovery.messages == len(kept) == len(original) - second_count
     assert kept == original[:first] + original[first + second_count :]
+
+
+def test_the_writing_thread_keeps_the_order_and_reports_a_failed_write(tmp_path: Path) -> None:
+    """Messages go to the MCAP writer on a second thread in batches: many batches, topics
+    opened between them and a sync in the middle still read back in the order written; a
+    write that fails there fails a later call with the one-line log error, nothing is
+    written after it, and closing does not hide it."""
+    from slamfront.errors import LogError
+    from slamfront.mcaplog import writer as writer_module
+    from slamfront.messages import RunEvent
+
+    path = tmp_path / "ordered.mcap"
+    with writer_module.RunLogWriter(path) as log:
+        for n in range(3000):
+            log.write(f"/topic_{n % 7 if n > 1000 else 0}", RunEvent(event="x" * 300, n_frames=n), n)
+            if n == 1500:
+                log.sync()
+    frames = [m.decoded.n_frames for m in read_messages(path)]
+    assert frames == list(range(3000)) and validate_log(path).valid
+
+    class FailingStream:
+        def __init__(self, stream: Any) -> None:
+            self.stream, self.failed = stream, False
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(self.stream, name)
+
+        def write(self, data: bytes) -> int:
+            if self.failed:
+                raise AssertionError("written after a failed write")
+            if self.stream.size > 200_000:
+                self.failed = True
+                raise OSError(28, "No space left on device")
+            return self.stream.write(data)
+
+    log = writer_module.RunLogWriter(tmp_path / "full.mcap", chunk_size=50_000)
+    log._writer._Writer__stream = FailingStream(log._stream)  # the MCAP writer's output, as a full disk
+    with pytest.raises(LogError, match="cannot write the log: No space left on device"):
+        for n in range(5000):
+            log.write("/events", RunEvent(event=random.randbytes(300).hex(), n_frames=n), n)
+        log.close()
+    assert log.failed
+    log.close()  # closing a failed log keeps what is on disk, quietly

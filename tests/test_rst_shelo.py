@@ -228,3 +228,26 @@ def test_compiled_descriptor_is_the_numpy_reference_on_real_frames(shared_data: 
                     assert got.tobytes() == want.tobytes()
                 else:
                     assert np.allclose(square_root_normalise(got), square_root_normalise(want), rtol=0, atol=1e-6)
+
+
+def test_compiled_gradients_and_descriptor_are_the_opencv_numpy_bits() -> None:
+    """The compiled Sobel (OpenCV's border included, down to 1-pixel images), the edge
+    strength and the one-call histogram + square-root normalisation give the bits of
+    OpenCV's Sobel, ``np.mean`` and block_histograms_reference + square_root_normalise."""
+    from slamfront_plugins.descriptors.rst_shelo import _gradients, _sobel
+
+    rng = np.random.default_rng(7)
+    descriptor = RstShelo(RstShelo.Config(preprocess=False, cells_x=8, cells_y=4, min_edge_strength=0.0))
+    c = descriptor.config
+    for n in range(60):
+        height, width = int(rng.integers(1, 40)), int(rng.integers(1, 70))
+        gray = (rng.integers(0, 256, (height, width)) // int(rng.integers(1, 60))).astype(np.uint8)
+        gx, gy, magnitude = _gradients(gray)
+        want_x, want_y = _sobel(gray)
+        assert gx.tobytes() == want_x.tobytes() and gy.tobytes() == want_y.tobytes()
+        assert magnitude.tobytes() == np.sqrt(want_x * want_x + want_y * want_y).tobytes()
+        assert edge_strength(gray) == float(np.sqrt(want_x * want_x + want_y * want_y).mean())
+        if height >= c.cells_y and width >= c.cells_x:
+            theta, weight = cell_orientations_reference(gray, c.cells_x, c.cells_y)
+            histogram = block_histograms_reference(theta, weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
+            assert descriptor.describe(gray).tobytes() == square_root_normalise(histogram).tobytes(), n

@@ -380,23 +380,95 @@ def cell_sums(gx, gy, xs, ys, along, across, magnitude):  # type: ignore[no-unty
 
 
 @jit
+def sobel_3x3(image, gx, gy, magnitude):  # type: ignore[no-untyped-def]
+    # cv2.Sobel(image as float32, CV_32F, 1, 0) and (0, 1), ksize 3, OpenCV's default
+    # border (BORDER_REFLECT_101: ..., 2, 1 | 0, 1, 2, ... | n-2, n-3, ...), of a (H, W)
+    # uint8 image, and np.sqrt(gx * gx + gy * gy) in float32. The same bits in any order of
+    # the additions: a gradient is an integer of at most 4 * 255, its square and the sum of
+    # two squares integers below 2 ** 24, all held exactly by float32
+    height, width = image.shape
+    for r in range(height):
+        up = r - 1 if r > 0 else (1 if height > 1 else 0)
+        down = r + 1 if r < height - 1 else (height - 2 if height > 1 else 0)
+        for c in range(width):
+            left = c - 1 if c > 0 else (1 if width > 1 else 0)
+            right = c + 1 if c < width - 1 else (width - 2 if width > 1 else 0)
+            a, b, d = np.int32(image[up, left]), np.int32(image[up, c]), np.int32(image[up, right])
+            e, f = np.int32(image[r, left]), np.int32(image[r, right])
+            g, h, i = np.int32(image[down, left]), np.int32(image[down, c]), np.int32(image[down, right])
+            fx = np.float32((d - a) + 2 * (f - e) + (i - g))
+            fy = np.float32((g - a) + 2 * (h - b) + (i - d))
+            gx[r, c] = fx
+            gy[r, c] = fy
+            magnitude[r, c] = np.sqrt(np.float32(fx * fx) + np.float32(fy * fy))
+
+
+@jit
+def rst_shelo_cells(image, xs, ys, gx, gy, pixel_magnitude, along, across, magnitude):  # type: ignore[no-untyped-def]
+    # sobel_3x3 then cell_sums, in one call (RST-SHelo's cells of one uint8 image)
+    sobel_3x3(image, gx, gy, pixel_magnitude)
+    cell_sums(gx, gy, xs, ys, along, across, magnitude)
+
+
+@jit
 def soft_votes(theta, weight, blocks, row_weights, col_weights, bin_steps, bins, histogram):  # type: ignore[no-untyped-def]
     # RST-SHelo's soft votes: every cell's vote split over 2 block rows x 2 block columns x
     # 2 orientation bins, added to the flat padded histogram corner by corner, cell by cell
     # (the order of block_histograms' np.bincount), with its arithmetic term for term
+    # (each cell's bin position is worked out once, not once per corner: the same operations)
     corners, cells_y, cells_x = blocks.shape
     histogram[:] = 0.0
+    low_bin = np.empty((cells_y, cells_x), dtype=np.int64)
+    fraction = np.empty((cells_y, cells_x), dtype=np.float64)
+    for cy in range(cells_y):
+        for cx in range(cells_x):
+            position = theta[cy, cx] / np.pi * bins - 0.5
+            low = np.floor(position)
+            fraction[cy, cx] = position - low
+            low_bin[cy, cx] = np.int64(low)
     for corner in range(corners):
         for cy in range(cells_y):
             for cx in range(cells_x):
-                position = theta[cy, cx] / np.pi * bins - 0.5
-                low = np.floor(position)
-                fraction = position - low
                 step = bin_steps[corner, cy, cx]
-                share = fraction if step == 1 else 1 - fraction
-                target = blocks[corner, cy, cx] + (np.int64(low) + step) % bins
+                share = fraction[cy, cx] if step == 1 else 1 - fraction[cy, cx]
+                target = blocks[corner, cy, cx] + (low_bin[cy, cx] + step) % bins
                 vote = weight[cy, cx] * row_weights[corner, cy, cx] * col_weights[corner, cy, cx] * share
                 histogram[target] += vote
+
+
+@jit
+def root_normalise(padded, blocks_y, blocks_x, bins, flat, frames, partial, out):  # type: ignore[no-untyped-def]
+    # RST-SHelo's square-root normalisation of the (blocks_y + 2, blocks_x + 2, bins) padded
+    # histogram's interior, as square_root_normalise computes it in NumPy: the interior
+    # copied in C order to ``flat`` (float64), L1-normalised by its pairwise sum (np.sum's
+    # order, after the reduction's initial 0), square-rooted, divided by the pairwise sum
+    # of the roots and rounded to float32 into ``out``; all zeros when the sum is not positive
+    n = 0
+    for by in range(1, blocks_y + 1):
+        for bx in range(1, blocks_x + 1):
+            start = (by * (blocks_x + 2) + bx) * bins
+            for b in range(bins):
+                flat[n] = padded[start + b]
+                n += 1
+    total = 0.0 + pairwise_sum(flat, 0, n, frames, partial)
+    if total <= 0:
+        out[:] = 0.0
+        return
+    for i in range(n):
+        flat[i] = np.sqrt(flat[i] / total)
+    rooted = 0.0 + pairwise_sum(flat, 0, n, frames, partial)
+    for i in range(n):
+        out[i] = np.float32(flat[i] / rooted)
+
+
+@jit
+def rst_shelo_histogram(theta, weight, blocks, row_weights, col_weights, bin_steps, bins, blocks_y, blocks_x,  # type: ignore[no-untyped-def]
+                        padded, flat, frames, partial, out):
+    # soft_votes then root_normalise, in one call: RST-SHelo's descriptor from its cells
+    soft_votes(theta, weight, blocks, row_weights, col_weights, bin_steps, bins, padded)
+    root_normalise(padded, blocks_y, blocks_x, bins, flat, frames, partial, out)
+
+
 @jit
 def path_sweep(columns, queries, half, bounds, offsets, directions, out, lo, hi):  # type: ignore[no-untyped-def]
     # columns: (C, R) float64; query n's window is columns n .. n + 2 * half, answered at

@@ -5,6 +5,14 @@ Two encodings share one file: Foxglove's protobuf schemas for things Foxglove dr
 (:mod:`slamfront.messages`) for stage outputs. The writer is finalised on close, also
 when the run ends with an exception, so the file always has its summary and footer.
 
+Messages reach the MCAP writer on a second thread, in batches, in the order they were
+written (:class:`_Background`): building chunks, compressing them, their CRCs, the file's
+hash and the writes run beside the stages (zstd, zlib, hashlib and file writes release
+Python's lock), so a run whose log is large pays for it on the other core. Everything else
+(channels, metadata, attachments, syncs, closing) waits for the batches before it, so the
+file is the same bytes as written in one thread; a write that fails there fails the next
+call here, and closing writes every batch handed over.
+
 Power loss is what finalising cannot help with: whatever the operating system has not
 put on disk is gone. Every ``sync_seconds`` the writer closes the chunk being filled
 and fsyncs the file, so a power cut loses at most that many seconds of the run (and
@@ -19,7 +27,9 @@ import json
 import logging
 import os
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import AbstractContextManager
 from pathlib import Path
 from types import TracebackType
@@ -38,6 +48,53 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none"
 PROFILE = ""  # no ROS profile: Foxglove reads protobuf and jsonschema channels directly
 
 logger = logging.getLogger(__name__)
+
+BATCH_BYTES = 1 << 18
+"""Message bytes handed to the writing thread at a time: few hand-offs (each costs a few
+microseconds of locking), small enough that the two threads overlap within a chunk."""
+
+MAX_PENDING_BATCHES = 8
+"""Batches that may wait for the writing thread before a new one waits for the oldest:
+memory stays bounded (about 2 MiB) when the disk is slower than the run."""
+
+
+class _Background:
+    """One worker thread that runs jobs in the order they are submitted; a job's error is
+    raised in the caller's thread by the next :meth:`submit` or :meth:`wait`, and every job
+    after a failed one is skipped (nothing is written after a failed write)."""
+
+    def __init__(self) -> None:
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: deque[Future[None]] = deque()
+        self._failed = False
+
+    def _run(self, job: Callable[[], None]) -> None:
+        if self._failed:
+            return
+        try:
+            job()
+        except BaseException:
+            self._failed = True
+            raise
+
+    def submit(self, job: Callable[[], None]) -> None:
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slamfront-log")
+        self._pending.append(self._pool.submit(self._run, job))
+        while self._pending and (self._pending[0].done() or len(self._pending) > MAX_PENDING_BATCHES):
+            self._pending.popleft().result()  # raises the job's error here
+
+    def wait(self) -> None:
+        """Wait for every job submitted so far (raising the first error)."""
+        while self._pending:
+            self._pending.popleft().result()
+
+    def shutdown(self) -> None:
+        """Wait for the jobs, errors or not, and stop the thread."""
+        self._pending.clear()
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
 
 
 class LogSink(Protocol):
@@ -136,6 +193,9 @@ class RunLogWriter:
         self._json_schema_data: dict[str, bytes] = {}
         self._sequence: dict[int, int] = {}
         self._sinks: list[LogSink] = []
+        self._background = _Background()
+        self._batch: list[tuple[int, int, int, bytes, int]] = []
+        self._batch_bytes = 0
         self._closed = False
         self._sync_seconds = sync_seconds
         self._last_sync = time.monotonic()
@@ -148,6 +208,7 @@ class RunLogWriter:
     def _schema(self, name: str, encoding: str, data: bytes) -> int:
         key = (name, encoding, data)
         if key not in self._schemas:
+            self._drain()
             self._schemas[key] = self._writer.register_schema(name=name, encoding=encoding, data=data)
         return self._schemas[key]
 
@@ -160,6 +221,7 @@ class RunLogWriter:
             return channel_id
         # schema id 0 is MCAP's "no schema" (only met when copying a foreign log)
         schema_id = self._schema(schema_name, schema_encoding, schema_data) if schema_name or schema_encoding else 0
+        self._drain()
         channel_id = self._writer.register_channel(topic=topic, message_encoding=encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, schema_name)
         self._tell_sinks("channel", channel_id, topic, schema_name, schema_encoding, schema_data, encoding)
@@ -194,19 +256,36 @@ class RunLogWriter:
     def _add(self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None) -> None:
         sequence = self._sequence.get(channel_id, 0)
         self._sequence[channel_id] = sequence + 1
-        self._writer.add_message(
-            channel_id=channel_id,
-            log_time=log_time_ns,
-            publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
-            data=data,
-            sequence=sequence,
-        )
+        published = log_time_ns if publish_time_ns is None else publish_time_ns
+        self._batch.append((channel_id, log_time_ns, published, data, sequence))
+        self._batch_bytes += len(data)
         self.bytes_payload += len(data)
         self.n_messages += 1
         if self._sinks:
             self._tell_sinks("message", channel_id, log_time_ns, data)
+        if self._batch_bytes >= BATCH_BYTES:
+            self._hand_off()
         if self._sync_seconds is not None and time.monotonic() - self._last_sync >= self._sync_seconds:
             self._sync()
+
+    def _hand_off(self) -> None:
+        """Give the messages batched so far to the writing thread (in a change section: its
+        earlier failures are raised here)."""
+        if not self._batch:
+            return
+        batch, self._batch, self._batch_bytes = self._batch, [], 0
+        add = self._writer.add_message
+
+        def write_batch() -> None:
+            for channel_id, log_time, publish_time, data, sequence in batch:
+                add(channel_id=channel_id, log_time=log_time, publish_time=publish_time, data=data, sequence=sequence)
+
+        self._background.submit(write_batch)
+
+    def _drain(self) -> None:
+        """Everything written so far is in the MCAP writer (before any other call to it)."""
+        self._hand_off()
+        self._background.wait()
 
     @property
     def failed(self) -> bool:
@@ -279,6 +358,7 @@ class RunLogWriter:
         """A metadata record (string key/values), e.g. the run's versions."""
         self._check_open()
         with self._changing():
+            self._drain()
             self._writer.add_metadata(name, {k: str(v) for k, v in values.items()})
 
     def add_attachment(
@@ -291,6 +371,7 @@ class RunLogWriter:
         self._check_open()
         created = log_time_ns if create_time_ns is None else create_time_ns
         with self._changing():
+            self._drain()
             self._writer.add_attachment(
                 create_time=created, log_time=log_time_ns, name=name, media_type=media_type, data=data
             )
@@ -298,6 +379,7 @@ class RunLogWriter:
     # -- durability ----------------------------------------------------------------------
 
     def _sync(self) -> None:
+        self._drain()
         self._writer.flush()  # closes the current chunk and hands it to the OS
         os.fsync(self._stream.fileno())
         self._last_sync = time.monotonic()
@@ -319,12 +401,17 @@ class RunLogWriter:
             return
         if self._failed:  # finishing would only fail again; keep what is on disk as it is
             self._closed = True
+            self._background.shutdown()
             with contextlib.suppress(OSError):
                 self._stream.close()
             return
         with self._changing():
             self._closed = True  # in the section: a signal cannot leave the log marked closed but unfinished
             try:
+                try:
+                    self._drain()  # every batch handed over is written before the summary
+                finally:
+                    self._background.shutdown()
                 self._writer.finish()
                 self._stream.flush()
                 os.fsync(self._stream.fileno())

@@ -80,14 +80,32 @@ def kernel_for(shape: tuple[int, ...], reference_side: int = 480, reference_kern
 
 
 def _sobel(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's 3 x 3 Sobel gradients (float32) of a grey image (the reference the compiled one reproduces)."""
     image = gray.astype(np.float32)
     return cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3)
 
 
+def _gradients(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(gx, gy, magnitude)``, (H, W) float32: :func:`_sobel`'s bits and ``sqrt(gx^2 + gy^2)``,
+    in one compiled pass for a uint8 image (a descriptor costs a few calls, not a dozen)."""
+    if gray.dtype != np.uint8 or gray.ndim != 2:
+        gx, gy = _sobel(gray)
+        return gx, gy, np.sqrt(gx * gx + gy * gy)
+    gx, gy, magnitude = (np.empty(gray.shape, dtype=np.float32) for _ in range(3))
+    compiled().sobel_3x3(np.ascontiguousarray(gray), gx, gy, magnitude)
+    return gx, gy, magnitude
+
+
 def edge_strength(gray: np.ndarray) -> float:
     """Mean Sobel gradient magnitude of a (H, W) uint8 image, in grey levels per pixel."""
-    gx, gy = _sobel(gray)
-    return float(np.sqrt(gx * gx + gy * gy).mean())
+    return _mean(_gradients(gray)[2])
+
+
+def _mean(values: np.ndarray) -> float:
+    """``float(values.mean())`` for a float32 array, the same bits without ``np.mean``'s
+    Python steps: NumPy's sum (float32), divided by the count as an intp (in float64, as
+    ``np.mean`` divides) and rounded back to float32."""
+    return float(np.float32(np.add.reduce(values, axis=None) / np.intp(values.size)))
 
 
 def cell_orientations(
@@ -101,10 +119,15 @@ def cell_orientations(
     height, width = gray.shape
     if width < cells_x or height < cells_y:
         raise ValueError(f"a {width}x{height} image cannot be split into {cells_x}x{cells_y} cells")
-    gx, gy = _sobel(gray)
     xs, ys, area = _cell_edges(height, width, cells_y, cells_x)
     along, across, magnitude = (np.empty((cells_y, cells_x)) for _ in range(3))
-    compiled().cell_sums(gx, gy, xs, ys, along, across, magnitude)
+    if gray.dtype == np.uint8:  # the gradients and the cell sums in one compiled call
+        scratch = np.empty((3, height, width), dtype=np.float32)
+        compiled().rst_shelo_cells(np.ascontiguousarray(gray), xs, ys, scratch[0], scratch[1], scratch[2],
+                                   along, across, magnitude)
+    else:
+        gx, gy, _ = _gradients(gray)
+        compiled().cell_sums(gx, gy, xs, ys, along, across, magnitude)
     theta = np.mod(0.5 * np.arctan2(along, across), np.pi)
     return theta, magnitude / area
 
@@ -279,8 +302,16 @@ class RstShelo(Descriptor):
         self._kernels.add(kernel if c.preprocess else 0)
         image = preprocess(gray, kernel, c.equalise) if c.preprocess else gray
         theta, weight = cell_orientations(image, c.cells_x, c.cells_y)
-        histogram = block_histograms(theta, weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
-        return square_root_normalise(histogram)
+        # block_histograms then square_root_normalise in one compiled call, without the
+        # NumPy steps between (the same bits: tests/test_rst_shelo.py compares the two)
+        blocks_y, blocks_x = c.cells_y // c.block_y, c.cells_x // c.block_x
+        geometry = _block_geometry(c.cells_y, c.cells_x, c.block_y, c.block_x, c.bins, c.spatial_soft)
+        vector = np.empty(self.length, dtype=np.float32)
+        compiled().rst_shelo_histogram(
+            theta, weight, *geometry, c.bins, blocks_y, blocks_x, np.empty((blocks_y + 2) * (blocks_x + 2) * c.bins),
+            np.empty(self.length), np.empty((3, 64), dtype=np.int64), np.empty(64), vector,
+        )
+        return vector
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         frame = inputs.frame
