@@ -138,7 +138,8 @@ def test_paired_detectors_calibrate_on_the_reference_and_log_it(name: str) -> No
     scores = {r.frame: r.confidence for r in results}
     if name == "nearest_neighbour":  # accept: auto thresholds its supported confidence
         scores = dict(zip(scores, supported_confidence(*(np.array(v) for v in zip(
-            *[(r.frame, r.match, r.confidence) for r in results], strict=True)), 20, 10, 1.0), strict=True))
+            *[(r.frame, r.match, r.confidence) for r in results], strict=True)), NearestNeighbour.Config().support_answers,
+            NearestNeighbour.Config().support_agree, NearestNeighbour.Config().support_tolerance_frames), strict=True))
     assert all(scores[r.frame] >= t.threshold for r in accepted)
     assert all(not r.accepted for r in results if scores[r.frame] < t.threshold)
     # a clean re-traversal: what is accepted is right, and something is

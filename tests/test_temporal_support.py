@@ -9,6 +9,7 @@ import pytest
 
 from slamfront.acceptance import AcceptThreshold
 from slamfront.core.errors import CoreError
+from slamfront.core.operating_point import travelled
 from slamfront.core.temporal_support import (
     SupportTracker,
     contiguous_self_queries,
@@ -72,6 +73,45 @@ def test_contiguous_self_queries_keep_stretches_of_consecutive_frames() -> None:
     assert len(picked) == 500 and picked[0] == 0 and picked[-1] == 2999
     assert np.count_nonzero(np.diff(picked) == 1) == 490  # ten stretches of 50
     assert len(contiguous_self_queries(20, 30, 500)) == 0
+
+
+def test_travelled_counts_a_slow_or_still_step_as_a_fraction_of_a_frame() -> None:
+    steps = np.array([2.0, 2.0, 0.5, 0.0, 2.0, 8.0, np.nan])  # median 2: typical, a crawl, a stop, a jump, unknown
+    assert travelled(steps) == pytest.approx([0, 1, 2, 2.25, 2.25, 3.25, 4.25, 5.25])
+    assert travelled(np.zeros(3)) == pytest.approx([0, 1, 2, 3])  # no typical step: every step is a frame
+    assert travelled(np.array([])) == pytest.approx([0])
+
+
+def _crawling_reference(amount: float, **params: object) -> tuple[list, int]:
+    """A route whose reference crawls through one place for 120 frames (a train at a station:
+    each frame still differs from the last by noise, so it is not a stop), seen again under a
+    change (``amount``)."""
+    rng = np.random.default_rng(0)
+    speed = np.full(400, 0.5)
+    speed[150:270] = 0.01
+    x = np.cumsum(speed)
+    k = np.floor(x).astype(int)
+    a = (x - k)[:, None]
+    bases = rng.random((k.max() + 2, 32)) ** 4
+    frames = (1 - a) * bases[k] + a * bases[k + 1] + rng.random((400, 32)) * 0.1
+    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+    vectors = np.concatenate([reference, noisy(reference, amount, seed=4)])
+    detector = NearestNeighbour(NearestNeighbour.Config(**params))
+    return _feed_global(detector, vectors, ["reference"] * 400 + ["query"] * 400, "l2"), 400
+
+
+def test_a_reference_crawling_through_one_place_does_not_count_its_own_revisits_as_wrong() -> None:
+    """The exclusion window measured along the reference's pace (``accept_exclusion_pace``): frames
+    of the crawl more than 40 frames apart are one place, and counted as wrong answers they set
+    the threshold above what right answers under a change reach."""
+    out, n = _crawling_reference(0.6)
+    frame_window, _ = _crawling_reference(0.6, accept_exclusion_pace=False)
+    paced = next(m for m in out if isinstance(m, AcceptThreshold))
+    framed = next(m for m in frame_window if isinstance(m, AcceptThreshold))
+    assert framed.threshold > 0.1 and paced.threshold < 0.01
+    accepted, accepted_framed = _accepted(out, n), _accepted(frame_window, n)
+    assert all(abs(r.match - (r.frame - n)) <= 3 for r in accepted)
+    assert len(accepted) > len(accepted_framed) + 30
 
 
 def _accepted(out: list, n: int) -> list[LoopResult]:

@@ -131,3 +131,22 @@ def moving(distances: np.ndarray, rows: np.ndarray, columns: np.ndarray, still: 
     if len(finite) == 0:
         return np.ones(len(columns), dtype=bool)
     return adjacent > still * float(np.median(finite))
+
+
+def travelled(adjacent: np.ndarray) -> np.ndarray:
+    """(n,) how far a traversal of ``n`` frames has come at each frame, in typical frames,
+    from ``adjacent`` ((n - 1,) the distance between each frame's descriptor and the next
+    one's): a step counts as one frame when its frames differ at least as much as the
+    median step's do, and as that fraction of a frame when they differ less (a vehicle
+    crawling or stopped barely changes its view). An exclusion window measured along it
+    (:func:`exclusion_masked` with these positions) keeps frames of one place together
+    when the reference moves slowly: a frame counted there is the reference's own pace,
+    calibrated from the reference, not a clock tick. NaN or infinite steps count as one."""
+    steps = np.asarray(adjacent, dtype=np.float64).ravel()
+    finite = steps[np.isfinite(steps)]
+    typical = float(np.median(finite)) if len(finite) else 0.0
+    if typical <= 0:
+        fraction = np.ones(len(steps))
+    else:
+        fraction = np.where(np.isfinite(steps), np.clip(steps / typical, 0.0, 1.0), 1.0)
+    return np.concatenate([[0.0], np.cumsum(fraction)])

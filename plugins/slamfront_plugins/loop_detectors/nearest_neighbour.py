@@ -11,12 +11,13 @@ from pydantic import Field
 from slamfront import LoopDetector, Plugin, StageInputs
 from slamfront.acceptance import Acceptance, SupportConfig
 from slamfront.core.buffers import GrowingRows
-from slamfront.core.distances import pairwise, smallest, to_one
+from slamfront.core.distances import pairwise, rowwise, smallest, to_one
 from slamfront.core.operating_point import (
     exclusion_masked,
     exclusion_window,
     moving,
     self_queries,
+    travelled,
     uniqueness_confidence,
 )
 from slamfront.core.temporal_support import contiguous_self_queries
@@ -60,6 +61,19 @@ class NearestNeighbour(LoopDetector):
         accept_query_null_rule: Literal["quantile", "shift"] = Field(
             "shift", description="accept_query_null (acceptance.py): shift; the quantile rule (the largest null "
             "value at false_accept_rate 0) let wrong answers through on Nordland chunks (docs/loop_closure.md)"
+        )
+        support_answers: int = Field(
+            40, ge=1, description="supported_confidence: answers (query frames) looked back over, this one "
+            "included (40, not the shared 20: a repeated stretch of the reference, about 20 frames of one synthetic "
+            "street, set the 20-answer threshold above what right answers at night reach; docs/loop_closure.md)"
+        )
+        support_agree: int = Field(20, ge=1, description="supported_confidence: answers that must agree (this one "
+                                   "included); a revisit's first support_agree - 1 frames are not accepted")
+        accept_exclusion_pace: bool = Field(
+            True, description="accept: auto on the supported confidence: measure accept_exclusion_frames along "
+            "the reference's own pace (core/operating_point.py: travelled; a step whose frames differ less than "
+            "the median step's counts as that fraction of a frame), so a reference crawling through one place "
+            "for longer than the window does not count its own revisits of that place as wrong answers"
         )
         uniqueness_window: int = Field(10, ge=0, description="frames around the best match ignored for d_second")
         exclude_recent: int = Field(50, ge=0, description="stream mode: skip this many most recent frames")
@@ -124,7 +138,11 @@ class NearestNeighbour(LoopDetector):
         queries = queries[np.any(rows[queries] != 0, axis=1)]  # featureless frames get no answer
         distances = pairwise(rows, rows[queries], self._metric)  # type: ignore[arg-type]
         self._n_calibration_distances = distances.size
-        masked = exclusion_masked(distances, np.arange(n), queries, window)
+        along = np.arange(n, dtype=np.float64)
+        if self._acceptance.on_support and self.config.accept_exclusion_pace:
+            along = travelled(rowwise(rows[1:], rows[:-1], self._metric))  # type: ignore[arg-type]
+            self._n_calibration_distances += n - 1
+        masked = exclusion_masked(distances, along, along[queries], window)
         best, confidence = uniqueness_confidence(masked, self.config.uniqueness_window)
         scores = self._acceptance.reference_scores(queries, best, confidence)
         self._acceptance.calibrate(scores[moving(distances, np.arange(n), queries)], "reference")
