@@ -66,6 +66,30 @@ def encode_value(value: Any) -> Any:
     return value
 
 
+@functools.cache
+def _json_encoder() -> json.JSONEncoder:
+    """The encoder ``json.dumps(..., separators=(",", ":"), allow_nan=False)`` builds on every call, built once."""
+    return json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
+def encode_object(fields: typing.Iterable[tuple[str, Any]]) -> bytes:
+    """The compact UTF-8 JSON object of ``{name: encode_value(value)}``: the bytes of
+    ``json.dumps(..., separators=(",", ":"), allow_nan=False)``, written without the JSON
+    encoder scanning an array's base64 text (its alphabet never needs escaping), which for
+    a 1,152-float descriptor was half of the message's encoding."""
+    encode = _json_encoder().encode
+    parts = []
+    for name, value in fields:
+        if isinstance(value, np.ndarray):
+            array = np.ascontiguousarray(value)
+            text = (f'{{"dtype":{encode(array.dtype.str)},"shape":{encode(list(array.shape))},"data":"'
+                    f'{base64.b64encode(array.tobytes()).decode("ascii")}"}}')
+        else:
+            text = encode(encode_value(value))
+        parts.append(f"{encode(name)}:{text}")
+    return ("{" + ",".join(parts) + "}").encode()
+
+
 def plain_values(value: Any) -> list[float | int | None] | None:
     """An array as a flat row-major list of JSON numbers (None where not finite)."""
     if value is None:
