@@ -72,21 +72,30 @@ def _json_encoder() -> json.JSONEncoder:
     return json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
 
-def encode_object(fields: typing.Iterable[tuple[str, Any]]) -> bytes:
-    """The compact UTF-8 JSON object of ``{name: encode_value(value)}``: the bytes of
-    ``json.dumps(..., separators=(",", ":"), allow_nan=False)``, written without the JSON
-    encoder scanning an array's base64 text (its alphabet never needs escaping), which for
-    a 1,152-float descriptor was half of the message's encoding."""
+def encode_object(values: dict[str, Any], encoded: dict[str, Any] | None = None) -> bytes:
+    """The compact UTF-8 JSON of ``{k: encode_value(v)}`` for ``values``, then the already
+    JSON-ready ``encoded``: the bytes of ``json.dumps(..., separators=(",", ":"),
+    allow_nan=False)``. An array's base64 text is put in as is rather than scanned by the
+    JSON encoder (its alphabet never needs escaping): for a 1,152-float descriptor that scan
+    was half of the message's encoding."""
     encode = _json_encoder().encode
-    parts = []
-    for name, value in fields:
+    parts, run = [], {}
+    for name, value in values.items():
         if isinstance(value, np.ndarray):
+            if run:
+                parts.append(encode(run)[1:-1])
+                run = {}
             array = np.ascontiguousarray(value)
-            text = (f'{{"dtype":{encode(array.dtype.str)},"shape":{encode(list(array.shape))},"data":"'
-                    f'{base64.b64encode(array.tobytes()).decode("ascii")}"}}')
+            parts.append(f'{encode(name)}:{{"dtype":{encode(array.dtype.str)},"shape":{encode(list(array.shape))},'
+                         f'"data":"{base64.b64encode(array.tobytes()).decode("ascii")}"}}')
         else:
-            text = encode(encode_value(value))
-        parts.append(f"{encode(name)}:{text}")
+            run[name] = encode_value(value)
+    if encoded:
+        run.update(encoded)
+    if not parts:
+        return encode(run).encode()
+    if run:
+        parts.append(encode(run)[1:-1])
     return ("{" + ",".join(parts) + "}").encode()
 
 

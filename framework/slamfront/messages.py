@@ -66,10 +66,10 @@ class Message:
 
     def to_json(self) -> bytes:
         """Encode as compact UTF-8 JSON (see the module docstring for arrays and floats)."""
-        return encode_object([
-            *((f.name, getattr(self, f.name)) for f in dataclasses.fields(self)),
-            *((f"{name}{PLAIN_SUFFIX}", plain_values(getattr(self, name))) for name in self.plain_fields),
-        ])
+        return encode_object(
+            {f.name: getattr(self, f.name) for f in dataclasses.fields(self)},
+            {f"{name}{PLAIN_SUFFIX}": plain_values(getattr(self, name)) for name in self.plain_fields},
+        )
 
     @classmethod
     def from_json(cls, data: bytes | str) -> typing.Self:
