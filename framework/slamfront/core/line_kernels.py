@@ -31,6 +31,25 @@ jit = numba.njit(nogil=True, cache=True, error_model="numpy")
 _U = np.uint64  # unsigned indices: numba skips the negative-index wraparound, which kept the loops slow
 
 
+def _l1_term(context, builder, array_type, x, y):  # type: ignore[no-untyped-def]
+    # codegen of |x[i:i+8] - y[i:i+8]| as one 8-wide float32 vector (uint8 widened first),
+    # as a function of the index i: the step both lane-sum intrinsics add up
+    xs = context.make_array(array_type)(context, builder, x).data
+    ys = context.make_array(array_type)(context, builder, y).data
+    floats = ir.VectorType(ir.FloatType(), 8)
+    loaded = ir.VectorType(xs.type.pointee, 8)
+    fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
+
+    def term(index):  # type: ignore[no-untyped-def]
+        a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
+        b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
+        if array_type.dtype == types.uint8:
+            a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
+        return builder.call(fabs, [builder.fsub(a, b)])
+
+    return term
+
+
 @intrinsic
 def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
     # The 8 running sums of NumPy's pairwise block over [start, stop) (a multiple of 8
@@ -45,21 +64,8 @@ def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
     signature = types.UniTuple(types.float32, 8)(x, y, types.intp, types.intp)
 
     def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
-        array_type = sig.args[0]
-        xs = context.make_array(array_type)(context, builder, args[0]).data
-        ys = context.make_array(array_type)(context, builder, args[1]).data
+        term = _l1_term(context, builder, sig.args[0], args[0], args[1])
         lo, hi = args[2], args[3]
-        floats = ir.VectorType(ir.FloatType(), 8)
-        loaded = ir.VectorType(xs.type.pointee, 8)
-        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
-
-        def term(index):  # type: ignore[no-untyped-def]
-            a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
-            b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
-            if array_type.dtype == types.uint8:
-                a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
-            return builder.call(fabs, [builder.fsub(a, b)])
-
         sums = cgutils.alloca_once_value(builder, term(lo))
         eight = ir.Constant(lo.type, 8)
         with cgutils.for_range_slice(builder, builder.add(lo, eight), hi, eight, lo.type) as (index, _):
@@ -83,21 +89,8 @@ def lane_sums_l1_x4(typingctx, x, y, s0, s1, s2, s3, count):  # type: ignore[no-
     signature = types.UniTuple(types.float32, 32)(x, y, types.intp, types.intp, types.intp, types.intp, types.intp)
 
     def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
-        array_type = sig.args[0]
-        xs = context.make_array(array_type)(context, builder, args[0]).data
-        ys = context.make_array(array_type)(context, builder, args[1]).data
+        term = _l1_term(context, builder, sig.args[0], args[0], args[1])
         starts, n = args[2:6], args[6]
-        floats = ir.VectorType(ir.FloatType(), 8)
-        loaded = ir.VectorType(xs.type.pointee, 8)
-        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
-
-        def term(index):  # type: ignore[no-untyped-def]
-            a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
-            b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
-            if array_type.dtype == types.uint8:
-                a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
-            return builder.call(fabs, [builder.fsub(a, b)])
-
         sums = [cgutils.alloca_once_value(builder, term(start)) for start in starts]
         eight = ir.Constant(n.type, 8)
         with cgutils.for_range_slice(builder, eight, n, eight, n.type) as (offset, _):
