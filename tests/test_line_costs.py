@@ -56,7 +56,7 @@ def test_compiled_line_costs_equal_the_numpy_reference(dims: int, dtype: type, s
     assert compiled._keep == reference._keep > keep  # a window spanned more than the table: both grew it
 
 
-@pytest.mark.parametrize("dims", [1, 7, 8, 9, 128, 129, 300, 1152, 1153])
+@pytest.mark.parametrize("dims", [1, 7, 8, 9, 128, 129, 160, 300, 512, 576, 1024, 1152, 1153, 2304, 8192, 16384])
 def test_the_compiled_distance_has_rowwise_bits(dims: int) -> None:
     from slamfront.core.line_kernels import pairwise_l1
 
@@ -66,6 +66,10 @@ def test_the_compiled_distance_has_rowwise_bits(dims: int) -> None:
     frames, partial = np.empty((3, 64), dtype=np.int64), np.empty(64, dtype=np.float32)
     got = np.array([pairwise_l1(x, y, frames, partial) for x, y in zip(a, b)], dtype=np.float32)
     assert np.array_equal(got, rowwise(a, b, "l1"))
+    # uint8 descriptors: widened to float32 first, as rowwise does
+    a8, b8 = rng.integers(0, 256, (40, dims), dtype=np.uint8), rng.integers(0, 256, (40, dims), dtype=np.uint8)
+    got = np.array([pairwise_l1(x, y, frames, partial) for x, y in zip(a8, b8)], dtype=np.float32)
+    assert np.array_equal(got, rowwise(a8, b8, "l1"))
 
 
 def test_other_metrics_go_through_the_compute_callable() -> None:

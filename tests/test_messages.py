@@ -69,3 +69,30 @@ def test_plotted_arrays_are_also_plain_numbers_and_still_round_trip() -> None:
     assert json.loads(FrameInfo(frame=0, timestamp=0.0, traversal="s", sequence_index=0, name="", width=1,
                                 height=1).to_json())["pose_values"] is None
     assert "vector_values" not in json.loads(Features(frame=0, vector=np.ones(3)).to_json())  # not plotted
+
+
+def test_encoding_is_the_bytes_json_dumps_writes() -> None:
+    # to_json writes an array's base64 text without the JSON encoder; the bytes stay those
+    # of json.dumps of the encoded fields
+    import dataclasses
+
+    from slamfront.message_codec import PLAIN_SUFFIX, encode_value, plain_values
+    from slamfront.messages import Trajectory
+
+    rng = np.random.default_rng(2)
+    messages = [
+        Features(frame=1, vector=rng.random(1152).astype(np.float32), metric="l1"),
+        Features(frame=2, vector=np.zeros(0, dtype=np.uint8), descriptors=np.asfortranarray(rng.random((3, 4))),
+                 keypoints=np.ones((2, 2), dtype=">f4")[:, ::-1], metric="hamming"),
+        LoopResult(frame=1, match=-1, confidence=float("nan"), accepted=False, reason='"quoted" \u00e9 \\ \n',
+                   candidates=np.array(5, dtype=np.int64)),
+        RunMetrics(values={"a": [1.0, float("inf"), {"b": np.array([True, False])}], "\u00e9": -0.0}),
+        FrameInfo(frame=4, timestamp=1e-300, traversal="query", sequence_index=0, name="x", width=1, height=1,
+                  pose=np.eye(4)),
+        Trajectory(label="\u00fc", frames=np.arange(3)[::-1], poses=np.full((3, 4, 4), np.nan)),
+    ]
+    for message in messages:
+        payload = {f.name: encode_value(getattr(message, f.name)) for f in dataclasses.fields(message)}
+        for name in message.plain_fields:
+            payload[f"{name}{PLAIN_SUFFIX}"] = plain_values(getattr(message, name))
+        assert message.to_json() == json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()

@@ -36,7 +36,7 @@ from slamfront.message_codec import (
     PLAIN_SUFFIX,
     decode_any,
     decode_value,
-    encode_value,
+    encode_object,
     plain_values,
     schema_for,
     strip_optional,
@@ -66,10 +66,10 @@ class Message:
 
     def to_json(self) -> bytes:
         """Encode as compact UTF-8 JSON (see the module docstring for arrays and floats)."""
-        payload = {f.name: encode_value(getattr(self, f.name)) for f in dataclasses.fields(self)}
-        for name in self.plain_fields:
-            payload[f"{name}{PLAIN_SUFFIX}"] = plain_values(getattr(self, name))
-        return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+        return encode_object(
+            {f.name: getattr(self, f.name) for f in dataclasses.fields(self)},
+            {f"{name}{PLAIN_SUFFIX}": plain_values(getattr(self, name)) for name in self.plain_fields},
+        )
 
     @classmethod
     def from_json(cls, data: bytes | str) -> typing.Self:

@@ -196,12 +196,22 @@ def _k_nearest_l1_float32(queries: np.ndarray, rows: np.ndarray, k: int) -> np.n
     queries, rows = np.ascontiguousarray(queries), np.ascontiguousarray(rows)
     n, p = len(queries), rows.shape[1]
     bounded = np.empty((n, len(rows)), dtype=np.float32)
-    threads = threads_for(float(n) * rows.shape[0] * p)
-    run_chunks(lambda lo, hi: kernels.l1_float32_bound(queries, rows, bounded, lo, hi), n, threads)
-    kth = np.partition(bounded, k - 1, axis=1)[:, k - 1].astype(np.float64)
-    # 2 e on each side, e taken at the largest sum a kept row can have, with 10 % to spare
-    margin = 4.4 * p * _UNIT_ROUNDOFF * kth + np.finfo(np.float32).tiny
-    query_of, row_of = np.nonzero(bounded <= (kth + margin)[:, None])
+    tiny = np.finfo(np.float32).tiny
+    kept: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def bound(lo: int, hi: int) -> None:
+        # the bounded distances of queries lo..hi-1, then, on the same thread while they are
+        # in cache, the rows each query keeps: those within the margin of its k-th bounded one
+        kernels.l1_float32_bound(queries, rows, bounded, lo, hi)
+        kth = np.partition(bounded[lo:hi], k - 1, axis=1)[:, k - 1].astype(np.float64)
+        # 2 e on each side, e taken at the largest sum a kept row can have, with 10 % to spare
+        margin = 4.4 * p * _UNIT_ROUNDOFF * kth + tiny
+        query, row = np.nonzero(bounded[lo:hi] <= (kth + margin)[:, None])
+        kept[lo] = (query + lo, row)
+
+    run_chunks(bound, n, threads_for(float(n) * rows.shape[0] * p))
+    query_of = np.concatenate([kept[lo][0] for lo in sorted(kept)])  # in query order, as one nonzero gives
+    row_of = np.concatenate([kept[lo][1] for lo in sorted(kept)])
     exact = np.empty(len(query_of), dtype=np.float32)
     kernels.l1_float32_pairs(queries, rows, query_of, row_of, exact)
     order = np.lexsort((row_of, exact, query_of))  # by query, then distance, then row index

@@ -31,6 +31,25 @@ jit = numba.njit(nogil=True, cache=True, error_model="numpy")
 _U = np.uint64  # unsigned indices: numba skips the negative-index wraparound, which kept the loops slow
 
 
+def _l1_term(context, builder, array_type, x, y):  # type: ignore[no-untyped-def]
+    # codegen of |x[i:i+8] - y[i:i+8]| as one 8-wide float32 vector (uint8 widened first),
+    # as a function of the index i: the step both lane-sum intrinsics add up
+    xs = context.make_array(array_type)(context, builder, x).data
+    ys = context.make_array(array_type)(context, builder, y).data
+    floats = ir.VectorType(ir.FloatType(), 8)
+    loaded = ir.VectorType(xs.type.pointee, 8)
+    fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
+
+    def term(index):  # type: ignore[no-untyped-def]
+        a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
+        b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
+        if array_type.dtype == types.uint8:
+            a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
+        return builder.call(fabs, [builder.fsub(a, b)])
+
+    return term
+
+
 @intrinsic
 def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
     # The 8 running sums of NumPy's pairwise block over [start, stop) (a multiple of 8
@@ -45,21 +64,8 @@ def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
     signature = types.UniTuple(types.float32, 8)(x, y, types.intp, types.intp)
 
     def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
-        array_type = sig.args[0]
-        xs = context.make_array(array_type)(context, builder, args[0]).data
-        ys = context.make_array(array_type)(context, builder, args[1]).data
+        term = _l1_term(context, builder, sig.args[0], args[0], args[1])
         lo, hi = args[2], args[3]
-        floats = ir.VectorType(ir.FloatType(), 8)
-        loaded = ir.VectorType(xs.type.pointee, 8)
-        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(floats, [floats]), "llvm.fabs.v8f32")
-
-        def term(index):  # type: ignore[no-untyped-def]
-            a = builder.load(builder.bitcast(builder.gep(xs, [index]), loaded.as_pointer()), align=1)
-            b = builder.load(builder.bitcast(builder.gep(ys, [index]), loaded.as_pointer()), align=1)
-            if array_type.dtype == types.uint8:
-                a, b = builder.uitofp(a, floats), builder.uitofp(b, floats)
-            return builder.call(fabs, [builder.fsub(a, b)])
-
         sums = cgutils.alloca_once_value(builder, term(lo))
         eight = ir.Constant(lo.type, 8)
         with cgutils.for_range_slice(builder, builder.add(lo, eight), hi, eight, lo.type) as (index, _):
@@ -69,6 +75,40 @@ def lane_sums_l1(typingctx, x, y, start, stop):  # type: ignore[no-untyped-def]
         return context.make_tuple(builder, sig.return_type, lanes)
 
     return signature, codegen
+
+
+@intrinsic
+def lane_sums_l1_x4(typingctx, x, y, s0, s1, s2, s3, count):  # type: ignore[no-untyped-def]
+    # lane_sums_l1 of the four blocks [s0, s0 + count), ..., [s3, s3 + count) (count a multiple
+    # of 8, at least 8), in one loop: each block keeps its own 8-wide sum, added in the same
+    # order as lane_sums_l1 adds it (the same bits), but the four independent chains of adds
+    # overlap instead of each waiting for the previous add to finish. 32 values, block by block.
+    if not (isinstance(x, types.Array) and x == y and x.ndim == 1 and x.layout == "C"
+            and x.dtype in (types.float32, types.uint8)):
+        return None
+    signature = types.UniTuple(types.float32, 32)(x, y, types.intp, types.intp, types.intp, types.intp, types.intp)
+
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        term = _l1_term(context, builder, sig.args[0], args[0], args[1])
+        starts, n = args[2:6], args[6]
+        sums = [cgutils.alloca_once_value(builder, term(start)) for start in starts]
+        eight = ir.Constant(n.type, 8)
+        with cgutils.for_range_slice(builder, eight, n, eight, n.type) as (offset, _):
+            for total, start in zip(sums, starts):
+                builder.store(builder.fadd(builder.load(total), term(builder.add(start, offset))), total)
+        lanes = []
+        for total in sums:
+            vector = builder.load(total)
+            lanes += [builder.extract_element(vector, ir.Constant(ir.IntType(32), k)) for k in range(8)]
+        return context.make_tuple(builder, sig.return_type, lanes)
+
+    return signature, codegen
+
+
+@jit
+def _lanes_total(r0, r1, r2, r3, r4, r5, r6, r7):  # type: ignore[no-untyped-def]
+    # a block's 8 running sums combined as NumPy's pairwise block combines them
+    return ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
 
 
 @jit
@@ -98,6 +138,25 @@ def pairwise_l1(x, y, frames, partial):  # type: ignore[no-untyped-def]
     n = x.shape[0]
     if n <= PAIRWISE_BLOCK:
         return np.float32(0.0) + block_l1(x, y, 0, n)
+    # a length NumPy halves exactly down to its blocks (1,152 = 16 blocks of 72) is a full
+    # binary tree over equal blocks of whole 8-value steps: the blocks four at a time
+    # (lane_sums_l1_x4), then the tree level by level, the same additions as the walk below
+    size, leaves = n, 1
+    while size > PAIRWISE_BLOCK and size % 16 == 0:
+        size //= 2
+        leaves *= 2
+    if size <= PAIRWISE_BLOCK and size % 8 == 0 and leaves % 4 == 0 and leaves <= partial.shape[0]:
+        for g in range(0, leaves, 4):
+            t = lane_sums_l1_x4(x, y, g * size, (g + 1) * size, (g + 2) * size, (g + 3) * size, size)
+            partial[g] = _lanes_total(t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7])
+            partial[g + 1] = _lanes_total(t[8], t[9], t[10], t[11], t[12], t[13], t[14], t[15])
+            partial[g + 2] = _lanes_total(t[16], t[17], t[18], t[19], t[20], t[21], t[22], t[23])
+            partial[g + 3] = _lanes_total(t[24], t[25], t[26], t[27], t[28], t[29], t[30], t[31])
+        while leaves > 1:
+            leaves //= 2
+            for i in range(leaves):
+                partial[i] = partial[2 * i] + partial[2 * i + 1]
+        return np.float32(0.0) + partial[0]
     top = 0
     frames[0, 0], frames[1, 0], frames[2, 0] = 0, n, 0
     result = np.float32(0.0)

@@ -58,6 +58,8 @@ class Trajectory:
 
     def at(self, positions: np.ndarray | int) -> np.ndarray:
         """Map-frame positions paired with query positions (may fall outside the map)."""
+        if isinstance(positions, int):  # one position: the same float64 steps without NumPy's per-call cost
+            return np.int64(self.anchor_map + math.floor((positions - self.anchor_query) * self.speed + 0.5))
         offset = (np.asarray(positions, dtype=np.int64) - self.anchor_query) * self.speed
         return self.anchor_map + np.floor(offset + 0.5).astype(np.int64)
 
@@ -118,9 +120,11 @@ def best_trajectory(
     shifts = np.arange(-slack, slack + 1, dtype=np.int64)
     costs, counts = trajectory_costs(distances, rows, anchor_query, anchor_map, shifts, velocities, n_map,
                                      map_informative)
-    if not np.isfinite(costs).any():
+    best = int(costs.argmin())
+    # (the lowest cost is finite exactly when any is, NaN aside: NaN is only looked for then)
+    if not math.isfinite(costs.flat[best]) and not np.isfinite(costs).any():
         return None
-    s, v = np.unravel_index(int(np.argmin(costs)), costs.shape)
+    s, v = divmod(best, costs.shape[1])
     return Trajectory(
         cost=float(costs[s, v]), anchor_query=int(anchor_query), anchor_map=int(anchor_map + shifts[s]),
         speed=float(velocities[v]), rows=int(counts[s, v]),
