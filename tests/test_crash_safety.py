@@ -257,3 +257,46 @@ def test_the_writing_thread_keeps_the_order_and_reports_a_failed_write(tmp_path:
         log.close()
     assert log.failed
     log.close()  # closing a failed log keeps what is on disk, quietly
+
+
+def test_an_image_compressed_on_the_writing_thread_lands_in_its_place(tmp_path: Path) -> None:
+    """write_foxglove_later builds its message on the writing thread, in the order written
+    (the same bytes as write_foxglove's); a build that fails there fails a later call, and
+    the log is left unfinalised as after a failed write, never closed as if complete."""
+    import numpy as np
+
+    from slamfront.errors import LogError
+    from slamfront.mcaplog import foxglove
+    from slamfront.mcaplog import writer as writer_module
+    from slamfront.messages import RunEvent
+
+    rng = np.random.default_rng(3)
+    images = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(40)]
+    eager, later = tmp_path / "eager.mcap", tmp_path / "later.mcap"
+    for path in (eager, later):
+        with writer_module.RunLogWriter(path) as log:
+            for n, image in enumerate(images):
+                log.write("/events", RunEvent(event="frame", n_frames=n), n)
+                width = 32 if n % 2 else 64  # downscaled, or kept as it is (then copied)
+                if path == eager:
+                    log.write_foxglove("/camera/image", foxglove.compressed_image(image, n, width, "jpeg", 90), n)
+                else:
+                    bgr = foxglove.image_to_encode(image, width)
+                    image[:] = 0  # the caller's array may change at once: the copy is what is encoded
+                    log.write_foxglove_later("/camera/image", foxglove.CompressedImage,
+                                             lambda bgr=bgr, n=n: foxglove.encoded_image(bgr, n, "jpeg", 90), n, 100)
+    assert [(m.topic, m.data) for m in read_messages(eager)] == [(m.topic, m.data) for m in read_messages(later)]
+
+    def broken() -> Any:
+        raise ValueError("image encoding failed")
+
+    log = writer_module.RunLogWriter(tmp_path / "broken.mcap")
+    log.write_foxglove_later("/camera/image", foxglove.CompressedImage, broken, 0, 100)
+    with pytest.raises(ValueError, match="image encoding failed"):
+        for _ in range(10):
+            log.sync()
+    assert log.failed
+    with pytest.raises(LogError, match="an earlier write failed"):
+        log.write("/events", RunEvent(event="x", n_frames=1), 1)
+    log.close()  # closing a failed log keeps what is on disk, quietly
+    assert not validate_log(tmp_path / "broken.mcap").valid

@@ -8,6 +8,8 @@ its own (a replayed log's source copies the original records unchanged).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from slamfront.frame import Frame
@@ -49,11 +51,10 @@ class FrameLogger:
         )
         options = self.options
         log.write(FRAMES_TOPIC, info, stamp)
-        if options.images:
-            image = foxglove.compressed_image(
-                frame.image, stamp, options.image_max_width, options.image_format, options.jpeg_quality
-            )
-            log.write_foxglove(IMAGE_TOPIC, image, stamp)
+        if options.images:  # compressed on the log's writing thread, beside the stages
+            bgr = foxglove.image_to_encode(frame.image, options.image_max_width)
+            encode = functools.partial(foxglove.encoded_image, bgr, stamp, options.image_format, options.jpeg_quality)
+            log.write_foxglove_later(IMAGE_TOPIC, foxglove.CompressedImage, encode, stamp, bgr.nbytes // 8)
         if options.depth and frame.depth is not None:
             log.write_foxglove(DEPTH_TOPIC, foxglove.depth_image(frame.depth, stamp, options.depth_encoding), stamp)
         if options.points and frame.depth is not None and frame.camera is not None:

@@ -85,10 +85,12 @@ class RunLogCapture:
 
     def flush(self, log: RunLogWriter, stamp_ns: int) -> int:
         """Write the records kept so far to ``/log`` at ``stamp_ns``; returns how many."""
+        records = self._buffer.take()
+        if not records:  # the usual case: called after every stage of every frame
+            return 0
         from slamfront.mcaplog import foxglove
         from slamfront.mcaplog.topics import LOG_TOPIC
 
-        records = self._buffer.take()
         for record, text in records:
             line = foxglove.log_line(
                 text, stamp_ns, foxglove_level(record.levelno), record.name,

@@ -55,11 +55,22 @@ def compressed_image(
     image: np.ndarray, stamp_ns: int, max_width: int, image_format: str, jpeg_quality: int
 ) -> CompressedImage:
     """An RGB or grey uint8 image, downscaled to ``max_width`` and encoded (jpeg/png)."""
+    return encoded_image(image_to_encode(image, max_width), stamp_ns, image_format, jpeg_quality)
+
+
+def image_to_encode(image: np.ndarray, max_width: int) -> np.ndarray:
+    """What :func:`encoded_image` compresses: ``image`` downscaled to ``max_width``, in
+    OpenCV's BGR order, always a new array (it may be encoded later, on another thread)."""
     height, width = image.shape[:2]
     if width > max_width:
         scale = max_width / width
         image = cv2.resize(image, (max_width, max(1, round(height * scale))), interpolation=cv2.INTER_AREA)
-    bgr = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    return image.copy() if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+
+
+def encoded_image(bgr: np.ndarray, stamp_ns: int, image_format: str, jpeg_quality: int) -> CompressedImage:
+    """:func:`image_to_encode`'s output compressed (jpeg/png) into a Foxglove message."""
     params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if image_format == "jpeg" else []
     ok, encoded = cv2.imencode(f".{'jpg' if image_format == 'jpeg' else 'png'}", bgr, params)
     if not ok:

@@ -199,7 +199,6 @@ class RunLogWriter:
         self._closed = False
         self._sync_seconds = sync_seconds
         self._last_sync = time.monotonic()
-        self.bytes_payload = 0
         self.n_messages = 0
         self.n_syncs = 0
 
@@ -245,21 +244,25 @@ class RunLogWriter:
             self._json_schema_data[cls.schema_name] = json.dumps(cls.json_schema()).encode()
         return self._json_schema_data[cls.schema_name]
 
-    def _protobuf_schema(self, message: Any) -> tuple[str, bytes]:
-        name = type(message).DESCRIPTOR.full_name
+    def _protobuf_schema(self, message_type: type) -> tuple[str, bytes]:
+        name = message_type.DESCRIPTOR.full_name  # type: ignore[attr-defined]
         if name not in self._protobuf_schema_data:
-            self._protobuf_schema_data[name] = build_file_descriptor_set(type(message)).SerializeToString()
+            self._protobuf_schema_data[name] = build_file_descriptor_set(message_type).SerializeToString()
         return name, self._protobuf_schema_data[name]
 
     # -- writing -------------------------------------------------------------------------
 
-    def _add(self, channel_id: int, log_time_ns: int, data: bytes, publish_time_ns: int | None = None) -> None:
+    def _add(
+        self, channel_id: int, log_time_ns: int, data: bytes | Callable[[], bytes], publish_time_ns: int | None = None,
+        size_hint: int = 0,
+    ) -> None:
+        """Queue one message; ``data`` may be a function that makes its bytes on the writing
+        thread (:meth:`write_foxglove_later`), ``size_hint`` then standing for its length."""
         sequence = self._sequence.get(channel_id, 0)
         self._sequence[channel_id] = sequence + 1
         published = log_time_ns if publish_time_ns is None else publish_time_ns
         self._batch.append((channel_id, log_time_ns, published, data, sequence))
-        self._batch_bytes += len(data)
-        self.bytes_payload += len(data)
+        self._batch_bytes += len(data) if isinstance(data, bytes) else size_hint
         self.n_messages += 1
         if self._sinks:
             self._tell_sinks("message", channel_id, log_time_ns, data)
@@ -278,14 +281,26 @@ class RunLogWriter:
 
         def write_batch() -> None:
             for channel_id, log_time, publish_time, data, sequence in batch:
+                if not isinstance(data, bytes):
+                    data = data()
                 add(channel_id=channel_id, log_time=log_time, publish_time=publish_time, data=data, sequence=sequence)
 
-        self._background.submit(write_batch)
+        self._background_call(self._background.submit, write_batch)
 
     def _drain(self) -> None:
         """Everything written so far is in the MCAP writer (before any other call to it)."""
         self._hand_off()
-        self._background.wait()
+        self._background_call(self._background.wait)
+
+    def _background_call(self, call: Callable[..., None], *args: Any) -> None:
+        """``call``, which raises what failed on the writing thread: any failure there (a full
+        disk, a message that could not be built) leaves the log as it is on disk, unfinalised,
+        as the thread skips every batch after it."""
+        try:
+            call(*args)
+        except BaseException:
+            self._failed = True
+            raise
 
     @property
     def failed(self) -> bool:
@@ -324,11 +339,29 @@ class RunLogWriter:
     def write_foxglove(self, topic: str, message: Any, log_time_ns: int) -> None:
         """Write a protobuf message (a Foxglove schema) on ``topic``."""
         self._check_open()
-        name, schema = self._protobuf_schema(message)
+        name, schema = self._protobuf_schema(type(message))
         data = message.SerializeToString()
         with self._changing():
             channel = self._channel(topic, name, "protobuf", schema, "protobuf")
             self._add(channel, log_time_ns, data)
+
+    def write_foxglove_later(
+        self, topic: str, message_type: type, build: Callable[[], Any], log_time_ns: int, size_hint: int
+    ) -> None:
+        """:meth:`write_foxglove` of the ``message_type`` that ``build`` returns, built on the
+        writing thread in its place in the log: an image's compression releases Python's lock,
+        so it runs beside the stages instead of between them. ``build`` must read only what
+        nothing changes afterwards (its own copy of an image); ``size_hint`` is about the
+        message's length. A sink watching the log (``--live``) needs the bytes now: then it is
+        built here. An error in ``build`` fails a later call, as a failed write does."""
+        if self._sinks:
+            self.write_foxglove(topic, build(), log_time_ns)
+            return
+        self._check_open()
+        name, schema = self._protobuf_schema(message_type)
+        with self._changing():
+            channel = self._channel(topic, name, "protobuf", schema, "protobuf")
+            self._add(channel, log_time_ns, lambda: build().SerializeToString(), size_hint=size_hint)
 
     def write_raw(
         self,
