@@ -12,6 +12,7 @@ from slamfront.messages import LoopResult
 from slamfront_plugins.loop_detectors.hierarchical_frames import (
     PairDistances,
     Trajectory,
+    best_trajectories,
     best_trajectory,
     line_uniqueness,
     realign,
@@ -47,6 +48,20 @@ def test_the_best_trajectory_recovers_the_speed_and_the_anchor(speed: float) -> 
     assert found is not None
     assert found.speed == pytest.approx(speed) and found.anchor_map == 120 and found.rows == 40
     assert np.array_equal(found.at(rows), truth.at(rows))
+
+
+def test_best_trajectories_are_best_trajectory_anchor_by_anchor() -> None:
+    """Level 2 scores an iteration's anchors in one call: the same trajectories (None where
+    too few rows stay inside the map) and the same distances computed, anchor by anchor."""
+    map_vectors = route_descriptors(120, 1, seed=6)
+    query = noisy(map_vectors[20:80], 0.05)
+    rows, velocities = np.arange(10, 50), speeds(0.8, 1.25, 40)
+    anchors = [(30, 40), (30, 52), (45, 3), (35, 118), (49, 69), (30, -25)]
+    one, many = _cache(query, map_vectors), _cache(query, map_vectors)
+    want = [best_trajectory(one, rows, t, m, 2, velocities, len(map_vectors)) for t, m in anchors]
+    assert best_trajectories(many, rows, anchors, 2, velocities, len(map_vectors)) == want
+    assert want[-1] is None and sum(w is not None for w in want) >= 4
+    assert many.computed == one.computed > 0
 
 
 def test_rows_outside_the_map_are_left_out_and_half_must_stay_inside() -> None:

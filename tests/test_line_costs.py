@@ -56,6 +56,39 @@ def test_compiled_line_costs_equal_the_numpy_reference(dims: int, dtype: type, s
     assert compiled._keep == reference._keep > keep  # a window spanned more than the table: both grew it
 
 
+@pytest.mark.parametrize(("compiled", "seed"), [(True, 0), (True, 1), (False, 2)])
+def test_best_lines_of_many_anchors_equal_line_costs_anchor_by_anchor(compiled: bool, seed: int) -> None:
+    """One call for many anchors: each anchor's lowest line as ``costs.argmin()`` picks it
+    (-1 when no line has a finite cost), the same bits and the same distances computed as
+    line_costs called anchor by anchor, through table resizes."""
+    rng = np.random.default_rng(seed)
+    n_map, n_query, dims = 120, 100, 40
+    vectors = rng.random((n_map + n_query, dims)).astype(np.float32)
+    map_rows, query_rows = np.arange(n_map, dtype=np.int64), np.arange(n_map, n_map + n_query, dtype=np.int64)
+    one = _pair(vectors, query_rows, map_rows, 8, compiled)
+    many = _pair(vectors, query_rows, map_rows, 8, compiled)
+    informative = rng.random(n_map) > 0.1
+    shifts = np.arange(-2, 3, dtype=np.int64)
+    for call in range(25):
+        end = int(rng.integers(20, n_query))
+        rows = np.arange(end - int(rng.integers(3, 30 if call % 5 else 60)), end + 1, dtype=np.int64)
+        speeds = np.round(rng.uniform(-1.5, 1.5, int(rng.integers(1, 5))), 3)
+        anchors_t = rng.integers(rows[0], rows[-1] + 1, int(rng.integers(1, 12)))
+        anchors_m = rng.integers(-30, n_map + 30, len(anchors_t))  # some lines fall outside the map
+        need = int(rng.integers(1, len(rows) + 1))
+        best, cost, count = many.best_lines(rows, anchors_t, anchors_m, shifts, speeds, n_map, informative, need)
+        for a in range(len(anchors_t)):
+            costs, counts = one.line_costs(rows, int(anchors_t[a]), int(anchors_m[a]), shifts, speeds, n_map,
+                                           informative, need)
+            lowest = int(costs.argmin())
+            if not np.isfinite(costs).any():
+                assert best[a] == -1 and cost[a] == np.inf and count[a] == 0
+            else:
+                assert best[a] == lowest and cost[a] == costs.flat[lowest] and count[a] == counts.flat[lowest]
+        assert many.computed == one.computed
+    assert (many._keep, many.computed) == (one._keep, one.computed) and many._keep > 8  # both tables grew
+
+
 @pytest.mark.parametrize("dims", [1, 7, 8, 9, 128, 129, 160, 300, 512, 576, 1024, 1152, 1153, 2304, 8192, 16384])
 def test_the_compiled_distance_has_rowwise_bits(dims: int) -> None:
     from slamfront.core.line_kernels import pairwise_l1

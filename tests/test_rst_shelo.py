@@ -247,7 +247,29 @@ def test_compiled_gradients_and_descriptor_are_the_opencv_numpy_bits() -> None:
         assert gx.tobytes() == want_x.tobytes() and gy.tobytes() == want_y.tobytes()
         assert magnitude.tobytes() == np.sqrt(want_x * want_x + want_y * want_y).tobytes()
         assert edge_strength(gray) == float(np.sqrt(want_x * want_x + want_y * want_y).mean())
+        # the descriptor's own compiled edge strength (scratch arrays kept per image size)
+        assert descriptor._workspace(gray.shape).edge_strength(gray) == edge_strength(gray)
         if height >= c.cells_y and width >= c.cells_x:
             theta, weight = cell_orientations_reference(gray, c.cells_x, c.cells_y)
             histogram = block_histograms_reference(theta, weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
             assert descriptor.describe(gray).tobytes() == square_root_normalise(histogram).tobytes(), n
+
+
+def test_descriptors_returned_earlier_are_not_overwritten_by_later_calls() -> None:
+    """The scratch arrays are reused call after call (one set per image size); the
+    descriptors handed out are not among them."""
+    rng = np.random.default_rng(11)
+    descriptor = RstShelo()
+    images = [rng.integers(0, 256, shape, dtype=np.uint8) for shape in ((32, 64), (48, 80), (32, 64), (48, 80))]
+    first = [descriptor.describe(image) for image in images]
+    kept = [vector.copy() for vector in first]
+    again = [descriptor.describe(image) for image in images[::-1]][::-1]
+    for vector, copy, repeat in zip(first, kept, again):
+        assert vector.tobytes() == copy.tobytes() == repeat.tobytes()
+    assert len({vector.tobytes() for vector in first}) == 4  # four different images
+
+
+def test_a_featureless_image_smaller_than_the_grid_describes_to_zeros() -> None:
+    """As before the scratch arrays: a tiny image is an error only when it has edges to describe."""
+    vector = RstShelo().describe(np.full((4, 4), 90, dtype=np.uint8))
+    assert not vector.any() and vector.dtype == np.float32

@@ -404,6 +404,15 @@ def sobel_3x3(image, gx, gy, magnitude):  # type: ignore[no-untyped-def]
 
 
 @jit
+def sobel_magnitude_sum(image, gx, gy, magnitude, frames, partial):  # type: ignore[no-untyped-def]
+    # sobel_3x3, then the float32 sum of the (H, W) magnitudes as np.add.reduce(magnitude,
+    # axis=None) adds them (NumPy's pairwise order over the contiguous H * W values, after
+    # the reduction's initial 0): RST-SHelo's edge strength without the NumPy steps
+    sobel_3x3(image, gx, gy, magnitude)
+    return np.float32(0.0) + pairwise_sum(magnitude.ravel(), 0, magnitude.size, frames, partial)
+
+
+@jit
 def rst_shelo_cells(image, xs, ys, gx, gy, pixel_magnitude, along, across, magnitude):  # type: ignore[no-untyped-def]
     # sobel_3x3 then cell_sums, in one call (RST-SHelo's cells of one uint8 image)
     sobel_3x3(image, gx, gy, pixel_magnitude)

@@ -270,3 +270,46 @@ def line_costs(table, owner, state, rows, anchor_query, anchor_map, shifts, velo
             costs[s, v] = (0.0 + pairwise_sum(values, 0, n_rows, frames64, partial64)) / np.float64(counts[s, v])
     state[1] += computed
     return 0
+
+
+@jit
+def best_lines(table, owner, state, rows, anchor_queries, anchor_maps, first, shifts, velocities, n_map,
+               map_informative, need, vectors, query_rows, map_rows, best, best_costs, best_counts):  # type: ignore[no-untyped-def]
+    # line_costs for the anchors first.. (one call instead of one per anchor), each reduced to
+    # its lowest line as NumPy's argmin picks it: the first NaN if any, else the first lowest
+    # (best[a] = flat index s * V + v; -1 when no line has a finite cost and none is NaN-first
+    # with a finite one elsewhere, as best_trajectory's None). Returns (anchor, rows needed)
+    # when the table must grow before anchor ``anchor`` (the anchors before it are done), else
+    # (-1, 0).
+    n_speeds = velocities.shape[0]
+    costs = np.empty((shifts.shape[0], n_speeds), dtype=np.float64)
+    counts = np.empty((shifts.shape[0], n_speeds), dtype=np.int64)
+    for a in range(first, anchor_queries.shape[0]):
+        needed = line_costs(table, owner, state, rows, anchor_queries[a], anchor_maps[a], shifts, velocities, n_map,
+                            map_informative, need, vectors, query_rows, map_rows, costs, counts)
+        if needed:
+            return a, needed
+        lowest = -1
+        first_nan = -1
+        finite = False
+        flat = costs.ravel()
+        for i in range(flat.shape[0]):
+            value = flat[i]
+            if np.isnan(value):
+                if first_nan < 0:
+                    first_nan = i
+            else:
+                if np.isfinite(value):
+                    finite = True
+                if lowest < 0 or value < flat[lowest]:
+                    lowest = i
+        chosen = first_nan if first_nan >= 0 else lowest
+        if chosen < 0 or (not np.isfinite(flat[chosen]) and not finite):
+            best[a] = -1
+            best_costs[a] = np.inf
+            best_counts[a] = 0
+        else:
+            best[a] = chosen
+            best_costs[a] = flat[chosen]
+            best_counts[a] = counts.ravel()[chosen]
+    return -1, 0

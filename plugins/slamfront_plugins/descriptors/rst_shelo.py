@@ -241,6 +241,49 @@ def square_root_normalise(histogram: np.ndarray) -> np.ndarray:
     return (rooted / rooted.sum()).astype(np.float32)
 
 
+class _Workspace:
+    """The compiled steps of one image size with their scratch arrays, allocated once: a
+    64 x 32 descriptor costs a few compiled calls, and a dozen NumPy allocations around them
+    cost as much again. The same bits as the NumPy steps (tests/test_rst_shelo.py). Its
+    arrays are reused by every call, so one descriptor instance describes one image at a time
+    (as a pipeline's stage does)."""
+
+    def __init__(self, shape: tuple[int, int], cells_x: int, cells_y: int, block_x: int, block_y: int, bins: int,
+                 spatial_soft: bool) -> None:
+        height, width = shape
+        self.too_small = (f"a {width}x{height} image cannot be split into {cells_x}x{cells_y} cells"
+                          if width < cells_x or height < cells_y else "")
+        self.size = np.intp(height * width)
+        self.pixels = np.empty((3, height, width), dtype=np.float32)  # gx, gy, magnitude
+        self.frames, self.partial = np.empty((3, 64), dtype=np.int64), np.empty(64, dtype=np.float32)
+        self.xs, self.ys, self.area = _cell_edges(height, width, cells_y, cells_x)
+        self.cells = np.empty((3, cells_y, cells_x))  # along, across, magnitude
+        self.blocks_y, self.blocks_x = cells_y // block_y, cells_x // block_x
+        self.geometry = _block_geometry(cells_y, cells_x, block_y, block_x, bins, spatial_soft)
+        self.padded = np.empty((self.blocks_y + 2) * (self.blocks_x + 2) * bins)
+        self.flat = np.empty(self.blocks_y * self.blocks_x * bins)
+        self.partial64 = np.empty(64)
+
+    def edge_strength(self, gray: np.ndarray) -> float:
+        """:func:`edge_strength` of a uint8 image of this size (the same bits)."""
+        gx, gy, magnitude = self.pixels
+        total = compiled().sobel_magnitude_sum(np.ascontiguousarray(gray), gx, gy, magnitude, self.frames, self.partial)
+        return float(np.float32(total / self.size))
+
+    def descriptor(self, image: np.ndarray, bins: int) -> np.ndarray:
+        """The descriptor of a preprocessed uint8 image: :func:`cell_orientations`, then
+        :func:`block_histograms` and :func:`square_root_normalise` in one compiled call."""
+        if self.too_small:
+            raise ValueError(self.too_small)
+        along, across, magnitude = self.cells
+        compiled().rst_shelo_cells(np.ascontiguousarray(image), self.xs, self.ys, *self.pixels, along, across, magnitude)
+        theta = np.mod(0.5 * np.arctan2(along, across), np.pi)
+        vector = np.empty(len(self.flat), dtype=np.float32)
+        compiled().rst_shelo_histogram(theta, magnitude / self.area, *self.geometry, bins, self.blocks_y, self.blocks_x,
+                                       self.padded, self.flat, self.frames, self.partial64, vector)
+        return vector
+
+
 class RstShelo(Descriptor):
     """RST-SHELO edge-orientation descriptor with Rodrigues 2019's Gaussian + equalisation preprocessing.
 
@@ -286,6 +329,7 @@ class RstShelo(Descriptor):
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
         self._kernels: set[int] = set()  # Gaussian kernel sides used (one per image size)
+        self._workspaces: dict[tuple[int, int], _Workspace] = {}  # scratch arrays per image size
 
     @property
     def length(self) -> int:
@@ -296,22 +340,35 @@ class RstShelo(Descriptor):
     def describe(self, gray: np.ndarray) -> np.ndarray:
         """(length,) float32 descriptor of a (H, W) uint8 grey image (zeros if featureless)."""
         c = self.config
+        if gray.dtype != np.uint8 or gray.ndim != 2:  # the NumPy steps (the compiled ones take uint8)
+            return self._describe_any(gray)
+        work = self._workspace(gray.shape)
+        if work.edge_strength(gray) < c.min_edge_strength:
+            return np.zeros(self.length, dtype=np.float32)
+        kernel = kernel_for(gray.shape, c.blur_reference_side) if c.gaussian_kernel == "auto" else c.gaussian_kernel
+        self._kernels.add(kernel if c.preprocess else 0)
+        image = preprocess(gray, kernel, c.equalise) if c.preprocess else gray
+        return work.descriptor(image, c.bins)
+
+    def _describe_any(self, gray: np.ndarray) -> np.ndarray:
+        """:meth:`describe` of an image that is not (H, W) uint8, through the NumPy steps."""
+        c = self.config
         if edge_strength(gray) < c.min_edge_strength:
             return np.zeros(self.length, dtype=np.float32)
         kernel = kernel_for(gray.shape, c.blur_reference_side) if c.gaussian_kernel == "auto" else c.gaussian_kernel
         self._kernels.add(kernel if c.preprocess else 0)
         image = preprocess(gray, kernel, c.equalise) if c.preprocess else gray
         theta, weight = cell_orientations(image, c.cells_x, c.cells_y)
-        # block_histograms then square_root_normalise in one compiled call, without the
-        # NumPy steps between (the same bits: tests/test_rst_shelo.py compares the two)
-        blocks_y, blocks_x = c.cells_y // c.block_y, c.cells_x // c.block_x
-        geometry = _block_geometry(c.cells_y, c.cells_x, c.block_y, c.block_x, c.bins, c.spatial_soft)
-        vector = np.empty(self.length, dtype=np.float32)
-        compiled().rst_shelo_histogram(
-            theta, weight, *geometry, c.bins, blocks_y, blocks_x, np.empty((blocks_y + 2) * (blocks_x + 2) * c.bins),
-            np.empty(self.length), np.empty((3, 64), dtype=np.int64), np.empty(64), vector,
-        )
-        return vector
+        histogram = block_histograms(theta, weight, c.block_x, c.block_y, c.bins, c.spatial_soft)
+        return square_root_normalise(histogram)
+
+    def _workspace(self, shape: tuple[int, int]) -> _Workspace:
+        work = self._workspaces.get(shape)
+        if work is None:
+            c = self.config
+            work = self._workspaces[shape] = _Workspace(shape, c.cells_x, c.cells_y, c.block_x, c.block_y, c.bins,
+                                                        c.spatial_soft)
+        return work
 
     def process(self, inputs: StageInputs) -> Sequence[Features]:
         frame = inputs.frame

@@ -131,6 +131,34 @@ def best_trajectory(
     )
 
 
+def best_trajectories(
+    distances: PairDistances,
+    rows: np.ndarray,
+    anchors: list[tuple[int, int]],
+    slack: int,
+    velocities: np.ndarray,
+    n_map: int,
+    map_informative: np.ndarray | None = None,
+) -> list[Trajectory | None]:
+    """:func:`best_trajectory` of each ``(anchor query position, anchor map position)``, in
+    one call to the distances (the same trajectories, the same distances computed)."""
+    if len(rows) == 0 or not anchors:
+        return [None] * len(anchors)
+    shifts = np.arange(-slack, slack + 1, dtype=np.int64)
+    queries, maps = (np.fromiter((a[i] for a in anchors), dtype=np.int64, count=len(anchors)) for i in (0, 1))
+    best, costs, counts = distances.best_lines(rows, queries, maps, shifts, velocities, n_map, map_informative,
+                                               max(1, math.ceil(len(rows) * MIN_INSIDE)))
+    found: list[Trajectory | None] = []
+    for a, (query, anchor_map) in enumerate(anchors):
+        if best[a] < 0:
+            found.append(None)
+            continue
+        s, v = divmod(int(best[a]), len(velocities))
+        found.append(Trajectory(cost=float(costs[a]), anchor_query=int(query), anchor_map=int(anchor_map + shifts[s]),
+                                speed=float(velocities[v]), rows=int(counts[a])))
+    return found
+
+
 @dataclass(frozen=True)
 class Cone:
     """The speed-free search: lines at any speed ``low..high`` (map frames per query frame)
@@ -286,6 +314,7 @@ def compare_candidates(
     cone: Cone | None = None,
     reverse_anchors: list[int] | None = None,
     distinct: int = 0,
+    found_before: dict[tuple[bool, int, int, int], Trajectory | None] | None = None,
 ) -> list[tuple[Trajectory, int]]:
     """Level 2, frame by frame: each anchor's best trajectory over the query positions
     ``rows``, best first (ties: the anchors' order).
@@ -304,9 +333,13 @@ def compare_candidates(
         this many map frames of the best one's, the best ending farther away is compared in
         full too (0: never): anchors of one place all find the same line, and the uniqueness
         confidence needs a candidate ending elsewhere to compare with.
+    :param found_before: the trajectories already found per anchor (filled here): a second
+        call with the same rows, speeds, cone, slack, map and screening reuses them (the
+        leave-one-out null of ``accept: auto`` compares most of the iteration's anchors again).
     :returns: ``(trajectory, source)`` of the anchors with a trajectory in the map.
     """
     backwards = reverse_anchors if reverse_anchors is not None else [m for _, m, _ in anchors]
+    known = {} if found_before is None else found_before
 
     def search(k: int, compared: np.ndarray, screening: bool) -> Trajectory | None:
         t, m, _ = anchors[k]
@@ -320,14 +353,28 @@ def compare_candidates(
                                    map_informative, stages=1)
         return cone_trajectory(distances, compared, t, (m, backwards[k]), slack, cone, n_map, map_informative)
 
+    def search_all(ks: list[int], compared: np.ndarray, screening: bool) -> list[Trajectory | None]:
+        keys = [(screening, anchors[k][0], anchors[k][1], backwards[k]) for k in ks]
+        missing = [k for k, key in zip(ks, keys) if key not in known]
+        if cone is not None:
+            new = [search(k, compared, screening) for k in missing]
+        else:  # every anchor's lines in one call
+            tried = screen_speeds if screening else velocities
+            forward = tried.max() >= 0
+            new = best_trajectories(distances, compared, [(anchors[k][0], anchors[k][1] if forward else backwards[k])
+                                                          for k in missing], slack, tried, n_map, map_informative)
+        for k, trajectory in zip(missing, new):
+            known[(screening, anchors[k][0], anchors[k][1], backwards[k])] = trajectory
+        return [known[key] for key in keys]
+
     kept = list(range(len(anchors)))
     searched = [k for k, a in enumerate(anchors) if a[2] >= 0]
     if refine and len(searched) > refine:
         screened = []
-        for k in searched:
-            found = search(k, rows[-screen_frames:], True)
+        end = int(rows[-1])
+        for k, found in zip(searched, search_all(searched, rows[-screen_frames:], True)):
             if found is not None:
-                screened.append((found.cost, k, int(found.at(int(rows[-1])))))
+                screened.append((found.cost, k, int(found.at(end))))
         screened.sort()
         best = screened[:refine]
         if distinct > 0 and all(abs(entry[2] - best[0][2]) <= distinct for entry in best):
@@ -335,8 +382,7 @@ def compare_candidates(
             best += [entry for entry in screened[refine:] if abs(entry[2] - best[0][2]) > distinct][:1]
         kept = [k for _, k, _ in best] + [k for k, a in enumerate(anchors) if a[2] < 0]
     found = []
-    for order, k in enumerate(kept):
-        trajectory = search(k, rows, False)
+    for order, (k, trajectory) in enumerate(zip(kept, search_all(kept, rows, False))):
         if trajectory is not None:
             found.append((trajectory.cost, order, trajectory, anchors[k][2]))
     return [(trajectory, source) for _, _, trajectory, source in sorted(found, key=lambda f: (f[0], f[1]))]

@@ -343,10 +343,11 @@ class HierarchicalSequence(PlaceSequenceDetector):
             anchors.append((at, int(track.at(at)), -1))
             reverse_anchors.append(int(track.at(at)))
         velocities, cone = self._search_speeds()
+        found: dict[tuple[bool, int, int, int], Trajectory | None] = {}  # per anchor, for the leave-out to reuse
         trajectories = compare_candidates(
             self._pairs, anchors, rows, n_map, map_informative, velocities=velocities, slack=c.anchor_slack,
             refine=c.refine, screen_frames=c.screen_frames, screen_speeds=velocities, cone=cone,
-            reverse_anchors=reverse_anchors, distinct=c.uniqueness_window if c.refine_apart else 0,
+            reverse_anchors=reverse_anchors, distinct=c.uniqueness_window if c.refine_apart else 0, found_before=found,
         )
         if not trajectories:
             self._count("no_candidate")
@@ -360,7 +361,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             else float(pm.similarity(best.cost))
         if self._acceptance.wants_query_null and not stream:
             self._leave_answer_out(places[-1], anchor, rows, n_map, map_informative, usable, trajectories,
-                                   velocities, cone, len(frames))
+                                   velocities, cone, len(frames), found)
         consistent = self._consistent(best, end)
         self._track = (best, end)
         # evidence accumulates along a run of consistent sequences; it restarts with an inconsistent one
@@ -378,6 +379,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
     def _leave_answer_out(
         self, place: int, anchor: int, rows: np.ndarray, n_map: int, map_informative: np.ndarray, usable: int,
         compared: list[tuple[Trajectory, int]], velocities: np.ndarray, cone: Cone | None, n_frames: int,
+        found: dict[tuple[bool, int, int, int], Trajectory | None] | None = None,
     ) -> None:
         """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`):
         levels 1 and 2 again with the map places within the exclusion window of the answer left
@@ -400,7 +402,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
             self._pairs, [(anchor, int(offsets[h]), int(h)) for h in hits], rows, n_map, map_informative,
             velocities=velocities, slack=c.anchor_slack, refine=c.refine, screen_frames=c.screen_frames,
             screen_speeds=velocities, cone=cone, reverse_anchors=[int(offsets[h + 1]) - 1 for h in hits],
-            distinct=c.uniqueness_window if c.refine_apart else 0,
+            distinct=c.uniqueness_window if c.refine_apart else 0, found_before=found,
         )
         # a line that still crosses the answered stretch is not wrong by construction
         kept = [t for t, _ in [*trajectories, *compared[1:]]
