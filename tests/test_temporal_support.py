@@ -175,6 +175,8 @@ def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
                "recall_at_operating_point": 0.4, "accept_threshold": 5e-324, "accept_auto": 1, "n_accepted": 3,
                "accept_on_supported_confidence": 1}
     assert "(supported confidence > 0, calibrated)" in headline(metrics)[0]
+    either = {**metrics, "accept_threshold": 0.62, "accept_threshold_supported": 0.6}
+    assert "(confidence >= 0.62 or supported confidence >= 0.6, calibrated)" in headline(either)[0]
 
 
 # --- the faithful detector: support counted in sequence decisions (opt-in) ------------------
@@ -325,18 +327,20 @@ def test_either_accepts_on_the_own_confidence_or_on_support_above_the_floor() ->
     acceptance.calibrate_reference(list(own), scored)
     assert acceptance.support_threshold > 0.58
     assert acceptance.statistics()["accept_threshold_supported"] == acceptance.support_threshold
-    # one score alone: calibrated on what it thresholds
+    # one score alone: calibrated on what it thresholds (on the own confidence, score() is it)
     for score, values in (("supported_confidence", scored), ("confidence", list(own))):
         acceptance = Acceptance(HierarchicalFaithful.Config(accept_score=score), "faithful")
-        assert acceptance.calibrate_reference(list(own), scored) == pytest.approx(
+        assert acceptance.calibrate_reference(list(own), values) == pytest.approx(
             threshold_at_false_accept_rate(np.asarray(values), 0.01))
-        assert acceptance.support_threshold is None
+        assert acceptance.support_threshold is None and "accept_threshold_supported" not in acceptance.statistics()
 
 
 def test_faithful_either_accepts_what_either_score_accepts_and_keeps_the_confidences() -> None:
-    out, n = _dusk_like("hierarchical_faithful", 0.6, **EITHER)
-    own, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN)
-    supported, _ = _dusk_like("hierarchical_faithful", 0.6, **SUPPORTED)
+    """A strong change (amount 0.8): the own confidence accepts some of the revisit, the
+    supported confidence above the floor adds more, all right; nothing else moves."""
+    out, n = _dusk_like("hierarchical_faithful", 0.8, **EITHER)
+    own, _ = _dusk_like("hierarchical_faithful", 0.8, **OWN)
+    supported, _ = _dusk_like("hierarchical_faithful", 0.8, **SUPPORTED)
     either, plain = _accepted(out, n), _accepted(own, n)
     assert {r.frame for r in plain} < {r.frame for r in either}  # more than on the own confidence alone
     assert sum(abs(r.match - (r.frame - n)) <= 3 for r in either) >= 0.95 * len(either)
