@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamfront.acceptance import AcceptThreshold
+from slamfront.acceptance import Acceptance, AcceptThreshold
 from slamfront.core.errors import CoreError
-from slamfront.core.operating_point import travelled
+from slamfront.core.operating_point import threshold_at_false_accept_rate, travelled
 from slamfront.core.temporal_support import (
     SupportTracker,
     contiguous_self_queries,
@@ -175,6 +175,8 @@ def test_the_headline_says_a_threshold_just_above_zero_plainly() -> None:
                "recall_at_operating_point": 0.4, "accept_threshold": 5e-324, "accept_auto": 1, "n_accepted": 3,
                "accept_on_supported_confidence": 1}
     assert "(supported confidence > 0, calibrated)" in headline(metrics)[0]
+    either = {**metrics, "accept_threshold": 0.62, "accept_threshold_supported": 0.6}
+    assert "(confidence >= 0.62 or supported confidence >= 0.6, calibrated)" in headline(either)[0]
 
 
 # --- the faithful detector: support counted in sequence decisions (opt-in) ------------------
@@ -300,3 +302,84 @@ def test_faithful_rebuilt_decisions_lend_support_only_when_level_1_found_them() 
     assert all(point[3] for point in detectors["always"]._points if point[1] >= 0)
     assert [m.confidence for m in outs["level1"] if isinstance(m, LoopResult)] == \
         [m.confidence for m in outs["always"] if isinstance(m, LoopResult)]
+
+
+# --- the faithful detector: own confidence or floored support; calibration passes ------------
+
+EITHER = {"accept_score": "confidence_or_supported", "accept_query_null": False}
+
+
+def test_either_accepts_on_the_own_confidence_or_on_support_above_the_floor() -> None:
+    """confidence_or_supported: the own confidence at the usual threshold, or the supported one at
+    its calibrated threshold, never below support_floor_quantile of the wrong own confidences."""
+    own = np.linspace(0.30, 0.60, 31)  # wrong answers' own confidences; 0.60 is the largest
+    acceptance = Acceptance(HierarchicalFaithful.Config(**EITHER, support_floor_quantile=0.75), "faithful")
+    threshold = acceptance.calibrate_reference(list(own), [0.0] * len(own))  # no wrong answer had support
+    assert threshold == pytest.approx(0.60) and threshold > 0.60
+    assert acceptance.support_threshold == pytest.approx(np.quantile(own, 0.75))  # the floor, not just above 0
+    assert acceptance.accepts(0.61, 0.0)  # confident enough on its own
+    assert acceptance.accepts(0.55, 0.54)  # supported above the floor (0.525)
+    assert not acceptance.accepts(0.55, 0.50)  # supported, but by answers no more confident than wrong ones
+    assert not acceptance.accepts(0.55)  # no supported confidence given: the own one alone
+    # a wrong answer that was supported lifts the supported threshold above the floor
+    scored = [0.0] * (len(own) - 1) + [0.58]
+    acceptance = Acceptance(HierarchicalFaithful.Config(**EITHER, false_accept_rate=0.0), "faithful")
+    acceptance.calibrate_reference(list(own), scored)
+    assert acceptance.support_threshold > 0.58
+    assert acceptance.statistics()["accept_threshold_supported"] == acceptance.support_threshold
+    # one score alone: calibrated on what it thresholds (on the own confidence, score() is it)
+    for score, values in (("supported_confidence", scored), ("confidence", list(own))):
+        acceptance = Acceptance(HierarchicalFaithful.Config(accept_score=score), "faithful")
+        assert acceptance.calibrate_reference(list(own), values) == pytest.approx(
+            threshold_at_false_accept_rate(np.asarray(values), 0.01))
+        assert acceptance.support_threshold is None and "accept_threshold_supported" not in acceptance.statistics()
+
+
+def test_faithful_either_accepts_what_either_score_accepts_and_keeps_the_confidences() -> None:
+    """A strong change (amount 0.8): the own confidence accepts some of the revisit, the
+    supported confidence above the floor adds more, all right; nothing else moves."""
+    out, n = _dusk_like("hierarchical_faithful", 0.8, **EITHER)
+    own, _ = _dusk_like("hierarchical_faithful", 0.8, **OWN)
+    supported, _ = _dusk_like("hierarchical_faithful", 0.8, **SUPPORTED)
+    either, plain = _accepted(out, n), _accepted(own, n)
+    assert {r.frame for r in plain} < {r.frame for r in either}  # more than on the own confidence alone
+    assert sum(abs(r.match - (r.frame - n)) <= 3 for r in either) >= 0.95 * len(either)
+    assert [m.confidence for m in out if isinstance(m, LoopResult)] == \
+        [m.confidence for m in own if isinstance(m, LoopResult)] == \
+        [m.confidence for m in supported if isinstance(m, LoopResult)]
+    [logged] = [m for m in out if isinstance(m, AcceptThreshold)]
+    [own_logged] = [m for m in own if isinstance(m, AcceptThreshold)]
+    assert logged.threshold == own_logged.threshold  # the own confidence's threshold is unchanged
+
+
+def test_a_calibration_pass_that_sees_no_wrong_answer_is_followed_by_one_a_place_later(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every query sequence of a pass can come out unresolved (no answer at all): the next pass
+    starts one place later, a different phase of the rho-place grid, up to
+    accept_calibration_passes; a pass that sees wrong answers is the last."""
+    starts: list[int] = []
+    real = HierarchicalFaithful._reference_pass
+
+    def first_sees_nothing(self: HierarchicalFaithful, frames: list[int], start: int, window: int) -> tuple:
+        starts.append(start)
+        copy, out = real(self, frames, start, window)
+        return copy, (out if len(starts) > 1 else [])
+
+    monkeypatch.setattr(HierarchicalFaithful, "_reference_pass", first_sees_nothing)
+    out, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN)
+    [threshold] = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert len(starts) == 2 and threshold.n_wrong > 0 and threshold.threshold < 1
+    starts.clear()
+    out, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN, accept_calibration_passes=1)
+    [threshold] = [m for m in out if isinstance(m, AcceptThreshold)]
+    assert len(starts) == 1 and threshold.n_wrong == 0 and threshold.threshold == 1
+    monkeypatch.setattr(HierarchicalFaithful, "_reference_pass", real)
+    detector = HierarchicalFaithful()
+    place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
+    run_stages(np.concatenate([np.eye(40, 32, dtype=np.float32)[np.arange(40) % 32] + 0.01] * 2),
+               ["reference"] * 40 + ["query"] * 40, place_map, detector)
+    offsets = detector.place_map.place_offsets()
+    passes = detector._calibration_starts(int(offsets[-1]), 5)
+    assert passes[0] == 5 and len(passes) == 5 and all(p in offsets for p in passes[1:])
+    assert passes == sorted(set(passes))

@@ -14,6 +14,11 @@ A detector whose config is a :class:`SupportConfig` may instead threshold each a
 at least half of its recent answers, agreeing with it along the route, reach), calibrated the
 same way: the same support computed over the reference's own consecutive wrong answers. The
 answers keep their confidence (what precision-recall curves rank); only ``accepted`` changes.
+Or both (``accept_score: confidence_or_supported``, detectors that offer it): an answer is
+accepted on its own confidence at the usual threshold, or on its supported confidence at that
+score's calibrated threshold but never below a floor, the ``support_floor_quantile`` of the
+reference's wrong answers' own confidences (support counts only from answers more confident
+than most wrong ones).
 """
 
 from __future__ import annotations
@@ -109,6 +114,11 @@ class SupportConfig(AcceptanceConfig):
         "frame", description="supported_confidence: what support_answers and support_agree count: query frames, "
         "or sequence decisions (detectors that answer a query sequence at once, one confidence for all its frames)"
     )
+    support_floor_quantile: float = Field(
+        0.75, ge=0, le=1, description="accept_score: confidence_or_supported (detectors that offer it): the "
+        "supported confidence's threshold is at least this quantile of the own confidences of the reference's "
+        "wrong answers"
+    )
 
     @model_validator(mode="after")
     def _agree_within_answers(self) -> SupportConfig:
@@ -137,7 +147,11 @@ class Acceptance:
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
         self._support = (config if self.auto and isinstance(config, SupportConfig)
-                         and config.accept_score == "supported_confidence" else None)
+                         and config.accept_score in ("supported_confidence", "confidence_or_supported") else None)
+        self.either = self._support is not None and config.accept_score == "confidence_or_supported"  # type: ignore[attr-defined]
+        """Accepted on the own confidence or on the supported one, each at its own threshold."""
+        self.support_threshold: float | None = None
+        """accept_score: confidence_or_supported: the supported confidence's threshold."""
         self.on_support = self._support is not None
         """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
         self._tracker = (None if self._support is None else SupportTracker(
@@ -151,8 +165,15 @@ class Acceptance:
     def calibrated(self) -> bool:
         return self.threshold is not None
 
-    def accepts(self, confidence: float) -> bool:
-        return self.threshold is not None and confidence >= self.threshold
+    def accepts(self, confidence: float, score: float | None = None) -> bool:
+        """Whether an answer is accepted: ``confidence`` (or ``score``, what :meth:`score` gave,
+        when given) at the threshold; with ``accept_score: confidence_or_supported`` the
+        confidence at the threshold or ``score`` at the supported one."""
+        if self.threshold is None:
+            return False
+        if self.either and score is not None and self.support_threshold is not None:
+            return confidence >= self.threshold or score >= self.support_threshold
+        return (confidence if score is None else score) >= self.threshold
 
     def score(self, frame: int, match: int, confidence: float, supplies: bool = True) -> float:
         """What the threshold is compared with for this answer (answers in time order): its
@@ -172,6 +193,20 @@ class Acceptance:
         return supported_confidence(positions, matches, confidences, c.support_answers, c.support_agree,
                                     c.support_tolerance_frames, per_step=c.support_per == "decision",
                                     supplies=supplies)
+
+    def calibrate_reference(self, own: list[float], scored: list[float]) -> float:
+        """Calibrate on the reference's wrong answers: their own confidences ``own`` and what
+        :meth:`score` gave them, ``scored`` (the same answers, in the same order). With
+        ``accept_score: confidence_or_supported`` the threshold is on ``own`` and the supported
+        one on ``scored``, never below the floor (``support_floor_quantile`` of ``own``)."""
+        if not self.either:
+            return self.calibrate(scored, "reference")
+        values = np.asarray(own, dtype=np.float64)
+        values = values[np.isfinite(values)]
+        floor = float(np.quantile(values, self._support.support_floor_quantile)) if len(values) else 1.0  # type: ignore[union-attr]
+        self.support_threshold = max(floor, threshold_at_false_accept_rate(
+            np.asarray(scored, dtype=np.float64), self._config.false_accept_rate))
+        return self.calibrate(own, "reference")
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
         """Set the threshold from the confidences of answers known to be wrong."""
@@ -251,5 +286,7 @@ class Acceptance:
                 "accept_auto": int(self.auto), "accept_n_wrong": self.n_wrong,
                 "accept_threshold_reference": nan if self.reference_threshold is None else self.reference_threshold,
                 "accept_n_query_null": len(self._null),
+                **({"accept_threshold_supported": nan if self.support_threshold is None else self.support_threshold}
+                   if self.either else {}),
                 **({"accept_on_supported_confidence": int(self.on_support)}
                    if isinstance(self._config, SupportConfig) else {})}

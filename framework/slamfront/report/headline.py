@@ -30,7 +30,10 @@ def headline(metrics: dict[str, Any]) -> list[str]:
                 how = "calibrated" if m.get("accept_auto") else "given"
                 score = "supported confidence" if m.get("accept_on_supported_confidence") else "confidence"
                 t = m["accept_threshold"]  # just above 0: no wrong answer had any (the supported confidence's case)
-                line += f" ({score} {f'>= {t:.3g}' if t >= 1e-12 or t <= 0 else '> 0'}, {how})"
+                either = (f" or supported confidence >= {m['accept_threshold_supported']:.3g}"
+                          if _number(m, "accept_threshold_supported") else "")
+                score = "confidence" if either else score
+                line += f" ({score} {f'>= {t:.3g}' if t >= 1e-12 or t <= 0 else '> 0'}{either}, {how})"
             if _number(m, "n_accepted"):
                 line += f" it accepts {m['n_accepted']} answers"
             if m.get("n_accepted") == 0:

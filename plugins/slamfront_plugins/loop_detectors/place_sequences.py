@@ -179,39 +179,61 @@ class PlaceSequenceDetector(LoopDetector):
 
     def _calibrate_on_reference(self) -> None:
         """accept: auto, paired traversals: this detector (a copy, same parameters) answers the
-        reference's last frames (its last two thirds, at most ``CALIBRATION_QUERY_FRAMES``) as
-        queries, as a stream, against the reference places ending before the frames it compares
-        (``sequence_frames``) and the exclusion window (``accept_exclusion_frames``, at most a
-        tenth of the reference): a traversal does not revisit itself, so every answer more than
-        two windows away is wrong, and their confidences set the threshold."""
+        reference's last frames (its last two thirds, at most ``CALIBRATION_QUERY_FRAMES``; a
+        subclass may add passes, :meth:`_calibration_starts`) as queries, as a stream, against the
+        reference places ending before the frames it compares (``sequence_frames``) and the
+        exclusion window (``accept_exclusion_frames``, at most a tenth of the reference): a
+        traversal does not revisit itself, so every answer more than two windows away is wrong,
+        and their confidences set the threshold."""
+        pm = self.place_map
+        n = int(pm.place_offsets()[-1])
+        window = exclusion_window(n, self.config.accept_exclusion_frames)
+        searched = pm.search_distances
+        frames = pm.map_frames_at(np.arange(n)).tolist()
+        position = {f: k for k, f in enumerate(frames)}
+        own: list[float] = []
+        scored: list[float] = []
+        sequences = 0
+        for start in self._calibration_starts(n, n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)):
+            copy, out = self._reference_pass(frames, start, window)
+            # an answer within two windows of its frame may be the query's own stretch seen just
+            # before: only those farther away are known to be wrong
+            scores = self._reference_scores(copy)
+            wrong = [m for m in out if isinstance(m, LoopResult) and m.match >= 0
+                     and position[m.frame] - position.get(m.match, -n) > 2 * window]
+            own += [m.confidence for m in wrong]
+            scored += [scores.get(m.frame, m.confidence) for m in wrong]
+            sequences += copy._sequence_distances()
+            if own:  # a later pass only when this one saw no wrong answer
+                break
+        self._calibration_distances = (pm.search_distances - searched, sequences)
+        self._acceptance.calibrate_reference(own, scored)
+
+    def _calibration_starts(self, n: int, start: int) -> list[int]:
+        """accept: auto: where the calibration passes over the reference (``n`` frames) start, in
+        the order tried: a pass runs only when those before it saw no wrong answer (``start``: the
+        last two thirds, at most ``CALIBRATION_QUERY_FRAMES``); here one pass."""
+        return [start]
+
+    def _reference_pass(self, frames: list[int], start: int, window: int) -> tuple[PlaceSequenceDetector, list[Message]]:
+        """One calibration pass: a copy of this detector answers the reference ``frames`` from
+        position ``start`` on, each against the places ending ``window`` (and ``sequence_frames``)
+        before it. Returns the copy and its answers."""
         pm = self.place_map
         offsets = pm.place_offsets()
-        n = int(offsets[-1])
-        window = exclusion_window(n, self.config.accept_exclusion_frames)
-        start = n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)
         reach = window + int(getattr(self.config, "sequence_frames", 0) or 0)
-        wrong: list[float] = []
-        searched = pm.search_distances
         copy = type(self)(self.config.model_copy(update={"accept": 0.0}))
         copy._map = pm
         out: list[Message] = []
         previous = None
-        frames = pm.map_frames_at(np.arange(n)).tolist()
-        position = {f: k for k, f in enumerate(frames)}
-        for k in range(start, n):
+        for k in range(start, len(frames)):
             # the map in reach ends the compared window and the exclusion window before this frame
             copy._horizon = max(0, int(np.searchsorted(offsets, k - reach, side="right")) - 1)
             place = pm.place_of(frames[k])
             out += copy._placed(frames[k], "query", place, place != previous)
             previous = place
         out += copy._finish()
-        # an answer within two windows of its frame may be the query's own stretch seen just
-        # before: only those farther away are known to be wrong
-        scores = self._reference_scores(copy)
-        wrong = [scores.get(m.frame, m.confidence) for m in out if isinstance(m, LoopResult) and m.match >= 0
-                 and position[m.frame] - position.get(m.match, -n) > 2 * window]
-        self._calibration_distances = (pm.search_distances - searched, copy._sequence_distances())
-        self._acceptance.calibrate(wrong, "reference")
+        return copy, out
 
     def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
         """accept: auto: what the threshold is compared with for the calibration copy's answers,
@@ -272,7 +294,7 @@ class PlaceSequenceDetector(LoopDetector):
         its first ``accept_calibration_frames`` frames calibrate it and are not accepted), on
         ``score`` when given (paired traversals: :meth:`Acceptance.score`), else the confidence."""
         accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
-                    else self._acceptance.accepts(confidence if score is None else score))
+                    else self._acceptance.accepts(confidence, score))
         return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)
 
     def _featureless(self, frame: int) -> LoopResult:
