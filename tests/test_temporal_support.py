@@ -264,14 +264,17 @@ def test_faithful_isolated_confident_wrong_decisions_are_not_accepted() -> None:
     assert all(m.accepted for m in plain if isinstance(m, LoopResult) and 100 <= m.frame - n < 120)
 
 
-def test_faithful_fixed_accept_and_default_compare_the_answers_own_confidence() -> None:
+def test_faithful_fixed_accept_compares_the_answers_own_confidence() -> None:
     out, n = _dusk_like("hierarchical_faithful", 0.6, accept=0.7, **SUPPORTED)
     results = [m for m in out if isinstance(m, LoopResult) and m.frame >= n and m.match >= 0]
     assert [(m.source, m.threshold) for m in out if isinstance(m, AcceptThreshold)] == [("given", 0.7)]
     assert results and all(r.accepted == (r.confidence >= 0.7) for r in results)
     assert HierarchicalFaithful(HierarchicalFaithful.Config(accept=0.7, **SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 0
-    assert HierarchicalFaithful().statistics()["accept_on_supported_confidence"] == 0  # opt-in
+    # the default: the own confidence, or the supported one above its floor (both thresholds calibrated)
+    assert HierarchicalFaithful.Config().accept_score == "confidence_or_supported"
+    default = HierarchicalFaithful().statistics()
+    assert default["accept_on_supported_confidence"] == 1 and "accept_threshold_supported" in default
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**OWN)).statistics()["accept_on_supported_confidence"] == 0
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**SUPPORTED)).statistics()[
         "accept_on_supported_confidence"] == 1
