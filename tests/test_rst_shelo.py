@@ -267,6 +267,11 @@ def test_descriptors_returned_earlier_are_not_overwritten_by_later_calls() -> No
     for vector, copy, repeat in zip(first, kept, again):
         assert vector.tobytes() == copy.tobytes() == repeat.tobytes()
     assert len({vector.tobytes() for vector in first}) == 4  # four different images
+    # images of ever new sizes keep only a few sets of scratch arrays, and the same answers
+    for side in range(40, 60):
+        image = rng.integers(0, 256, (32, side), dtype=np.uint8)
+        assert descriptor.describe(image).tobytes() == RstShelo().describe(image).tobytes()
+    assert len(descriptor._workspaces) <= 8
 
 
 def test_a_featureless_image_smaller_than_the_grid_describes_to_zeros() -> None:

@@ -241,6 +241,10 @@ def square_root_normalise(histogram: np.ndarray) -> np.ndarray:
     return (rooted / rooted.sum()).astype(np.float32)
 
 
+_WORKSPACES = 8
+"""Image sizes whose scratch arrays a descriptor keeps (a source rarely mixes more)."""
+
+
 class _Workspace:
     """The compiled steps of one image size with their scratch arrays, allocated once: a
     64 x 32 descriptor costs a few compiled calls, and a dozen NumPy allocations around them
@@ -365,6 +369,8 @@ class RstShelo(Descriptor):
     def _workspace(self, shape: tuple[int, int]) -> _Workspace:
         work = self._workspaces.get(shape)
         if work is None:
+            if len(self._workspaces) >= _WORKSPACES:  # images of ever new sizes: keep the most recent few
+                del self._workspaces[next(iter(self._workspaces))]
             c = self.config
             work = self._workspaces[shape] = _Workspace(shape, c.cells_x, c.cells_y, c.block_x, c.block_y, c.bins,
                                                         c.spatial_soft)
