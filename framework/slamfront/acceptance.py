@@ -261,8 +261,9 @@ class Acceptance:
     def stream_answer(self, position: int, confidence: float) -> bool:
         """A stream's answer to its ``position``-th frame (0-based): gathered as a wrong one while
         in the first ``accept_calibration_frames``, the threshold set at the first answer after them.
-        Returns whether it is accepted. A stream's threshold is on the answers' own confidence."""
-        self.on_support = False
+        Returns whether it is accepted. A stream's threshold is on the answers' own confidence
+        (so a detector asking for the supported one, or either, reports that it is not used)."""
+        self.on_support = self.either = False
         if self.calibrated:
             return self.accepts(confidence)
         if position < self._config.accept_calibration_frames:
