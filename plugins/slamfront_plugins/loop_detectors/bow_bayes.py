@@ -288,8 +288,9 @@ class BowBayes(LoopDetector):
         min_inliers: int | Literal["auto"] = Field(
             "auto", description="epipolar verification: RANSAC inliers needed; auto: above the inliers of every wrong "
             "answer the threshold is calibrated on (the reference against itself outside the exclusion window, or a "
-            "stream's first frames; false_accept_rate applies), and at least 8 (RTAB-Map's VhEp/MatchCountMin: the "
-            "7-point model fits 7 pairs of anything)"
+            "stream's first frames; false_accept_rate applies; on a reference, not those within its own views' "
+            "overlap: min_inliers_overlap), and at least 8 (RTAB-Map's VhEp/MatchCountMin: the 7-point model fits 7 "
+            "pairs of anything)"
         )
         min_inliers_overlap: Literal["measured", "none"] = Field(
             "measured", description="min_inliers: auto on a reference: measured: wrong reference answers no farther "

@@ -25,6 +25,9 @@ type by ``benchmarks/bench_bow_thresholds.py derive`` (results in
   greedy rule stays a ratio rule with a different processing order, not a distance
   threshold (a band of 0.16, what plain-distance percentiles gave before, left most
   features to the distance tests).
+
+And, for ``min_inliers: auto``'s calibration on a reference, how far apart its own views still
+share geometry (``overlap_probes``, ``overlap_extent``; docs/bow_bayes.md, verification).
 """
 
 from __future__ import annotations
