@@ -409,10 +409,10 @@ class SlowStreet:
         return descriptors.astype(np.float32), pixels.astype(np.float32)
 
 
-def _calibrated_on(street: SlowStreet, overlap: str) -> dict[str, float | int]:
+def _calibrated_on(street: SlowStreet, overlap: str | None) -> dict[str, float | int]:
     """min_inliers: auto calibrated on the street's 160 reference frames (at the first query frame)."""
-    detector = BowBayes(_config(accept="auto", accept_exclusion_frames=50, verify="epipolar",
-                                min_inliers_overlap=overlap))
+    given = {} if overlap is None else {"min_inliers_overlap": overlap}
+    detector = BowBayes(_config(accept="auto", accept_exclusion_frames=50, verify="epipolar", **given))
     for index in range(161):
         traversal = "reference" if index < 160 else "query"
         descriptors, keypoints = street.observe(index if index < 160 else 80, lap=int(index == 160))
@@ -426,7 +426,7 @@ def test_min_inliers_auto_leaves_out_wrong_answers_within_the_references_own_ove
     """On a reference whose views overlap beyond the exclusion window, the calibration's wrong answers
     (the nearest places outside the window) share real geometry; measured on the reference, the
     overlap covers the nearest of them, so they do not lift min_inliers (none: every one counts)."""
-    every = _calibrated_on(SlowStreet(), "none")
+    every = _calibrated_on(SlowStreet(), None)  # the default: none, every wrong answer counts
     assert every["verify_overlap_frames"] == -1 and every["verify_overlap_pairs_checked"] == 0
     assert every["verify_n_wrong"] >= 100 and every["verify_min_inliers"] >= 25
     measured = _calibrated_on(SlowStreet(), "measured")
