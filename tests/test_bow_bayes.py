@@ -370,3 +370,69 @@ def test_min_inliers_auto_is_calibrated_above_the_first_laps_wrong_answers() -> 
     truth = LoopGroundTruth.band(np.arange(80), np.r_[np.full(40, -1), np.arange(40)], 2, valid=(0, 39))
     accepted = np.array([r.accepted for r in results])
     assert accepted.sum() >= 10 and np.all(truth.is_correct(np.arange(80), np.array([r.match for r in results]))[accepted])
+
+
+def test_overlap_extent_is_where_the_reference_pairs_fall_to_the_far_pairs_level() -> None:
+    from slamfront_plugins.loop_detectors.bow_thresholds import overlap_extent, overlap_probes
+
+    assert overlap_probes(400) == [1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, 91]  # x sqrt(2), below a quarter
+    assert overlap_probes(4) == []
+    distances = np.repeat([1, 2, 4, 8, 16], 10)
+    # ten pairs per distance: inliers fall with the distance; a tenth of the pairs at 4 frames still share geometry
+    inliers = np.r_[np.full(10, 30), np.full(10, 20), np.r_[np.zeros(8), 15, 15], np.r_[np.zeros(9), 8], np.zeros(10)]
+    far = np.r_[np.zeros(40), 7, 9]  # the far pairs' most: 9 (a 7-point fit leaves 0 or >= 7 inliers)
+    assert overlap_extent(distances, inliers, far) == 4  # 8 frames apart: 8 <= 9, the far level
+    assert overlap_extent(distances, inliers, np.r_[far, 16]) == 2  # one lucky far pair only shortens it
+    assert overlap_extent(distances, inliers, []) == 0 and overlap_extent([], [], far) == 0
+    assert overlap_extent(distances, np.zeros(50), far) == 0
+
+
+class SlowStreet:
+    """A camera that moves 0.25 m a frame past a wall of landmarks (8 a metre, each with its own
+    descriptor and 3-D point) looking sideways, seeing 4 m either way: frames up to ~32 apart share
+    landmarks, farther beyond the 16-frame exclusion window (a tenth of 160) than the wrong answers."""
+
+    def __init__(self, seed: int = 0) -> None:
+        self.rng = np.random.default_rng(seed)
+        n = 8 * 60
+        self.x = np.sort(self.rng.uniform(-5, 55, n))
+        self.points = np.stack([self.x, self.rng.uniform(-2, 2, n), self.rng.uniform(4, 12, n)], axis=-1)
+        self.descriptors = self.rng.normal(size=(n, DIM)).astype(np.float32)
+
+    def observe(self, frame: int, lap: int) -> tuple[np.ndarray, np.ndarray]:
+        camera = np.array([0.25 * frame, 0.4 * lap, -0.3 * lap])
+        seen = np.flatnonzero(np.abs(self.x - camera[0]) <= 4.0)
+        relative = self.points[seen] - camera
+        pixels = 200.0 * relative[:, :2] / relative[:, 2:] + np.array([160.0, 120.0])
+        pixels += self.rng.normal(scale=0.3, size=pixels.shape)
+        descriptors = self.descriptors[seen] + self.rng.normal(scale=0.05, size=(len(seen), DIM))
+        return descriptors.astype(np.float32), pixels.astype(np.float32)
+
+
+def _calibrated_on(street: SlowStreet, overlap: str | None) -> dict[str, float | int]:
+    """min_inliers: auto calibrated on the street's 160 reference frames (at the first query frame)."""
+    given = {} if overlap is None else {"min_inliers_overlap": overlap}
+    detector = BowBayes(_config(accept="auto", accept_exclusion_frames=50, verify="epipolar", **given))
+    for index in range(161):
+        traversal = "reference" if index < 160 else "query"
+        descriptors, keypoints = street.observe(index if index < 160 else 80, lap=int(index == 160))
+        frame = Frame(index=index, timestamp=float(index), image=IMAGE, traversal=traversal)  # type: ignore[arg-type]
+        features = Features(frame=index, descriptors=descriptors, keypoints=keypoints, metric="l2")
+        detector.process(StageInputs(frame=frame, outputs={"descriptor": [features]}))
+    return detector.statistics()
+
+
+def test_min_inliers_auto_leaves_out_wrong_answers_within_the_references_own_overlap() -> None:
+    """On a reference whose views overlap beyond the exclusion window, the calibration's wrong answers
+    (the nearest places outside the window) share real geometry; measured on the reference, the
+    overlap covers the nearest of them, so they do not lift min_inliers (none: every one counts)."""
+    every = _calibrated_on(SlowStreet(), None)  # the default: none, every wrong answer counts
+    assert every["verify_overlap_frames"] == -1 and every["verify_overlap_pairs_checked"] == 0
+    assert every["verify_n_wrong"] >= 100 and every["verify_min_inliers"] >= 25
+    measured = _calibrated_on(SlowStreet(), "measured")
+    # beyond the 16-frame window, short of where frames stop sharing landmarks (32 frames: 8 m)
+    assert 16 < measured["verify_overlap_frames"] <= 32
+    assert measured["verify_n_wrong_within_overlap"] >= 20
+    assert measured["verify_n_wrong"] + measured["verify_n_wrong_within_overlap"] == every["verify_n_wrong"]
+    assert measured["verify_overlap_pairs_checked"] > 100 and measured["verify_overlap_seconds"] > 0
+    assert 8 <= measured["verify_min_inliers"] <= every["verify_min_inliers"] - 5

@@ -25,12 +25,17 @@ type by ``benchmarks/bench_bow_thresholds.py derive`` (results in
   greedy rule stays a ratio rule with a different processing order, not a distance
   threshold (a band of 0.16, what plain-distance percentiles gave before, left most
   features to the distance tests).
+
+And, for ``min_inliers: auto``'s calibration on a reference, how far apart its own views still
+share geometry (``overlap_probes``, ``overlap_extent``; docs/bow_bayes.md, verification).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import MappingProxyType
+
+import numpy as np
 
 BAND = 0.001 / 0.08
 """T_ND1 / T_ND2 of Wang et al. 2017 (squared SURF distances): the band where the ratio test decides."""
@@ -52,3 +57,49 @@ ND_THRESHOLDS: Mapping[str, tuple[float, float]] = MappingProxyType(
 
 SEED_SURF_THRESHOLDS = {"T_sim": 0.2, "T_loop": 0.11, "T_NNDR": 0.8, "T_ND1": 0.001, "T_ND2": 0.08}
 """Wang et al. 2017's table 4 (SURF-64, squared distances for T_ND1 / T_ND2), for reference."""
+
+
+# --- min_inliers: auto, how far the reference's own views overlap -------------------------------
+
+OVERLAP_QUANTILE = 90.0
+"""The percentile of a distance's sampled pairs' inliers that must exceed the far pairs' most: a
+tenth of the pairs at that distance sharing geometry is enough to count (overlap is a property
+of stretches of a route, a straight street, not of every frame)."""
+
+
+def overlap_probes(span: int) -> list[int]:
+    """Distances in frames at which the reference's overlap is probed: 1, then x sqrt(2) each
+    (1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64, ...), below a quarter of the reference."""
+    probes: list[int] = []
+    step = 0
+    while (distance := round(2 ** (step / 2))) < span / 4:
+        if not probes or distance > probes[-1]:
+            probes.append(distance)
+        step += 1
+    return probes
+
+
+def overlap_extent(distances: Sequence[int], inliers: Sequence[int], far: Sequence[int]) -> int:
+    """How far apart (in frames) two views of one traversal still share geometry: the largest probed
+    distance before the first one whose inliers' 90th percentile is no more than the most any far
+    pair reaches (pairs a quarter to half the reference apart: views of unrelated places). 0 when
+    even neighbouring frames are at that level, or nothing was probed.
+
+    ``distances`` and ``inliers``: one entry per sampled pair (RANSAC inliers of a fundamental
+    matrix between the two frames' features, as the detector verifies an answer).
+
+    The far level is their maximum, not a percentile: a fit needs 7 pairs, so inliers are 0 or at
+    least 7 and most far pairs have 0 (a percentile of them says nothing). A far pair that happens
+    to reach many inliers only shortens the extent, which keeps more wrong answers in the
+    calibration: the safe side."""
+    distance_of = np.asarray(distances, dtype=np.int64)
+    inliers_of = np.asarray(inliers, dtype=np.float64)
+    if not len(far) or not len(distance_of):
+        return 0
+    level = float(np.max(np.asarray(far, dtype=np.float64)))
+    extent = 0
+    for distance in np.unique(distance_of):
+        if np.percentile(inliers_of[distance_of == distance], OVERLAP_QUANTILE) <= level:
+            break
+        extent = int(distance)
+    return extent
