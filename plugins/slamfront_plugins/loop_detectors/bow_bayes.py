@@ -336,6 +336,7 @@ class BowBayes(LoopDetector):
         self._queries_started = False
         self._acceptance = Acceptance(c, self.name)
         self._reference_bags: list[tuple[int, Counter[int], _View | None]] = []
+        """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._check: _EpipolarCheck | None = None
         """Epipolar verification of accepted answers (made at the first frame: it needs the metric)."""
         self._min_inliers: int | None = (
@@ -343,11 +344,10 @@ class BowBayes(LoopDetector):
             else None if self._acceptance.auto else 8  # a given accept: nothing is calibrated, RTAB-Map's default
         )
         self._wrong_inliers: list[int] = []
-        self._wrong_inliers_summary = (float("nan"), float("nan"))
+        """min_inliers: auto in a stream: the inliers of the answers in the first frames (all wrong)."""
+        self._wrong_inliers_summary = (float("nan"), float("nan"))  # median, p99 of the calibration's wrong answers
         self._overlap = (-1, 0, 0, 0.0)
         """min_inliers_overlap: measured: extent in frames, wrong answers left out, pairs verified, seconds."""
-        """min_inliers: auto in a stream: the inliers of the answers in the first frames (all wrong)."""
-        """accept: auto, paired: every reference frame's bag (merged ones too), searched as queries are."""
         self._counts = Counter[str]()
         self._entered = 0  # places that entered WM during the current frame
         # predicting the coming frames' time (see _transfer)
