@@ -208,23 +208,31 @@ def growth(sizes: list[int], values: list[float]) -> float:
     return float(np.polyfit(np.log(sizes), np.log(values), 1)[0])
 
 
-def plot(results: dict[str, dict[int, dict[str, float]]], path: Path) -> Path:
+CACHED_PANELS = (("per_query_ms", "detector time per query", "ms per query", True),
+                 ("total_s", "whole paired run of n + n frames (extrapolated)", "seconds", True))
+ROUTE_PANELS = (("per_query_ms", "detector time per query, tiled route", "ms per query", True),
+                ("recall_at_100p", "recall at 100 % precision on the route's queries", "R@100%P", False))
+
+
+def plot(results: dict[str, dict[int, dict[str, float]]], path: Path,
+         panels: tuple[tuple[str, str, str, bool], ...] = CACHED_PANELS) -> Path:
+    """One panel per ``(key, title, y label, log scale)``, every method's value against the map size."""
     from slamfront.report.plots import _pyplot
 
     plt = _pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for label, by_size in results.items():
-        sizes = sorted(by_size)
-        ax.loglog(sizes, [by_size[n]["per_query_ms"] for n in sizes], "o-", label=label)
-        bx.loglog(sizes, [by_size[n]["total_s"] for n in sizes], "o-", label=label)
-    ax.set_title("detector time per query")
-    ax.set_ylabel("ms per query")
-    bx.set_title("whole paired run of n + n frames (extrapolated)")
-    bx.set_ylabel("seconds")
-    for axis in (ax, bx):
+    fig, axes = plt.subplots(1, len(panels), figsize=(11, 4.2))
+    for axis, (key, title, label, log) in zip(axes, panels):
+        for method, by_size in results.items():
+            sizes = sorted(by_size)
+            axis.plot(sizes, [by_size[n][key] for n in sizes], "o-", label=method)
+        axis.set_xscale("log")
+        if log:
+            axis.set_yscale("log")
+        axis.set_title(title)
+        axis.set_ylabel(label)
         axis.set_xlabel("map size n (reference frames)")
         axis.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -351,6 +359,7 @@ def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed:
         verdict = (f"At n = {largest}: the hierarchical detector takes {h['per_query_ms']:.2f} ms per query against "
                    f"SeqSLAM's {q['per_query_ms']:.1f} ms ({q['per_query_ms'] / h['per_query_ms']:.0f}x faster), "
                    f"R@100%P {h['recall_at_100p']:.3f} against {q['recall_at_100p']:.3f}.")
+    figure = plot(results, RESULTS / "scaling_route.png", ROUTE_PANELS)
     return "\n\n".join(part for part in [
         "## Tiled route: 4k to 64k map frames, described as a run describes them",
         f"The map is a route of n summer frames in tiles of the Nordland route (3,576 frames each), every tile a "
@@ -371,6 +380,7 @@ def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed:
                f"whole s (map + {n_queries} queries)", "whole s (n + n, extrapolated)",
                f"descriptor distances ({n_queries} queries)", "peak RSS MB"], rows),
         verdict,
+        f"![scaling on the tiled route]({figure.name})",
         "*ms per query* is the place map and detector per query frame after the first (answers included; "
         "SeqSLAM answers its batch at the end), description excluded; *map build* is describing and feeding "
         "the n map frames; *first query* is the first query frame alone, when the hierarchical place map "
