@@ -477,9 +477,9 @@ def _log_section(metrics: dict[str, Any], layout: str) -> EvaluationReport:
     ]
     table = "\n".join(["| | |", "| --- | --- |", *(f"| {k} | {v} |" for k, v in rows)])
     note = (
-        "Writing includes encoding the images, serialising every message and the periodic fsync "
-        "(`log.sync_seconds`); chunks are built, compressed and written on a second thread, and only "
-        f"the time the run waits for it counts. Open `run.mcap` in Foxglove with the shipped layout "
+        "Writing includes serialising every message and the periodic fsync (`log.sync_seconds`); the "
+        "images are encoded (on the run's thread with `--live`), and chunks built, compressed and written, "
+        f"on a second thread, and only the time the run waits for it counts. Open `run.mcap` in Foxglove with the shipped layout "
         f"`{layout}` (`slamfront layout {layout}` prints where it is)."
     )
     return EvaluationReport("Log", metrics={}, markdown=f"{table}\n\n{note}\n")
