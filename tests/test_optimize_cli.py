@@ -220,6 +220,15 @@ def test_a_failed_plot_fails_the_command_and_keeps_the_results(cli, ring_file: P
     assert (out / "optimized.g2o").stat().st_size > 0 and (out / "trajectory.tum").stat().st_size > 0
 
 
+def test_no_plots_in_a_reused_folder_leaves_no_older_plot(cli, ring_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert cli("optimize", ring_file, "-o", out)[0] == 0 and (out / "before_after.svg").exists()
+    code, _, err = cli("optimize", ring_file, "-o", out, "--no-plots", "--kernel", "cauchy")
+    assert code == 0, err
+    assert not (out / "before_after.svg").exists()  # it would show the first run's solve beside the second's numbers
+    assert "before_after.svg" not in (out / "report.md").read_text()
+
+
 def test_optimize_imports_no_library_it_does_not_use(ring_file: Path, tmp_path: Path) -> None:
     # the plot is SVG text: Pillow, pydantic, matplotlib and the vision libraries stay out of the process
     import subprocess

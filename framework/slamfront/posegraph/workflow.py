@@ -95,7 +95,10 @@ def optimize_file(
             write_tum(out_dir / "initial.tum", graph, result.initial, loaded.timestamps),
         ]
         figures, plot_failure = [], ""
-        if plots:
+        if not plots:  # an older run's plot must not sit beside these results
+            with contextlib.suppress(OSError):
+                (out_dir / "before_after.svg").unlink(missing_ok=True)
+        else:
             try:
                 figures.append(_plot(out_dir / "before_after.svg", graph_path, graph, result, truth, options))
             except Exception as exc:  # noqa: BLE001 - the results stand; the failure is reported, never hidden
