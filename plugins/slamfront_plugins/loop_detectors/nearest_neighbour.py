@@ -159,7 +159,7 @@ class NearestNeighbour(LoopDetector):
         distances = to_one(vector, self._vectors.view[:usable], self._metric)  # type: ignore[arg-type]
         order = smallest(distances, self.config.candidates)  # the stable sort's first ranks, without sorting all
         best = int(order[0])
-        confidence = self._uniqueness(distances, best)
+        confidence = self._uniqueness(distances)  # its best is order[0]: both take the first smallest
         if not stream and self._acceptance.wants_query_null:
             self._leave_answer_out(distances, best)
         frames = np.asarray(self._frames[:usable], dtype=np.int64)
@@ -171,14 +171,10 @@ class NearestNeighbour(LoopDetector):
             candidates=frames[order[: self.config.candidates]],
         )
 
-    def _uniqueness(self, distances: np.ndarray, best: int) -> float:
-        """``1 - d_best / d_second``, ``d_second`` the best distance more than ``uniqueness_window``
-        frames from the best (+inf: not a candidate)."""
-        far = np.abs(np.arange(len(distances)) - best) > self.config.uniqueness_window
-        second = float(distances[far].min()) if far.any() else np.inf
-        if not np.isfinite(second):
-            second = float(distances[best]) * 2 + 1e-9
-        return float(np.clip(1.0 - distances[best] / max(second, 1e-12), 0.0, 1.0))
+    def _uniqueness(self, distances: np.ndarray) -> float:
+        """``1 - d_best / d_second`` of one query (core/operating_point.py: ``uniqueness_confidence``, the
+        rule the calibration applies to the reference's own answers)."""
+        return float(uniqueness_confidence(distances[:, None], self.config.uniqueness_window)[1][0])
 
     def _leave_answer_out(self, distances: np.ndarray, best: int) -> None:
         """accept: auto's null under the queries' appearance (:meth:`Acceptance.query_null`): the
@@ -188,7 +184,7 @@ class NearestNeighbour(LoopDetector):
         masked = np.where(np.abs(np.arange(len(distances)) - best) <= window, np.inf, distances)
         if not np.isfinite(masked).any():
             return
-        self._acceptance.query_null(self._uniqueness(masked, int(np.argmin(masked))))
+        self._acceptance.query_null(self._uniqueness(masked))
 
     def statistics(self) -> dict[str, float | int]:
         return {
