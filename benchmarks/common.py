@@ -106,9 +106,10 @@ def publish(name: str, title: str, body: str, libraries: Sequence[str] = LIBRARI
 
 
 def merge_sections(path: Path, body: str) -> str:
-    """``body`` followed by the ``## `` sections of the existing ``path`` that ``body`` lacks
-    (in their old order), their heading marked as from an earlier run on the machine named
-    there: a run of some parts updates only what it measured."""
+    """The existing ``path``'s ``## `` sections in their order, those that ``body`` has replaced by
+    ``body`` (where the first of them stood; first when none did), the others kept with their heading
+    marked as from an earlier run on the machine named there: a run of some parts updates only what
+    it measured, and a page's sections keep their order whichever part ran last."""
     if not path.exists():
         return body
     old = path.read_text().rstrip()
@@ -116,13 +117,19 @@ def merge_sections(path: Path, body: str) -> str:
     machine_line = last if last.startswith("Machine: ") else ""
     old = old[: len(old) - len(machine_line)].rstrip()
     mark = " (earlier run"
-    out = body
+    parts: list[str] = []
+    placed = False
     for section in old.split("\n## ")[1:]:
         heading, rest = (section.split("\n", 1) + [""])[:2]
         if f"## {heading.split(mark)[0]}\n" in body:
+            if not placed:
+                parts.append(body.strip("\n"))
+                placed = True
             continue
         if mark not in heading:
             heading += f"{mark})"
             rest = f"\n{machine_line or 'Machine: not recorded.'} (The machine of that run.)\n{rest}"
-        out = out.rstrip("\n") + f"\n\n## {heading}\n{rest.strip(chr(10))}\n"
-    return out
+        parts.append(f"## {heading}\n{rest.strip(chr(10))}")
+    if not placed:
+        parts.insert(0, body.strip("\n"))
+    return "\n\n".join(parts) + "\n"
