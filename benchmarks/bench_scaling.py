@@ -39,7 +39,7 @@ The growth exponent is the slope of log(per-query time) against log(n) over the 
 (1 = linear search, 0 = constant). Methods come from recipes (with ``@key=value,...``
 overrides), so any detector configuration can be added on the command line.
 
-Run: .venv/bin/python benchmarks/bench_scaling.py [--study route|cached] [--sizes 4000 16000 64000]
+Run: .venv/bin/python benchmarks/bench_scaling.py [--study route|cached] [--sizes 4000 16000 64000] [--seeds 0 1 2]
      [--queries 300] [--seed 0] [--method LABEL=RECIPE[@key=value,...] ...]
 """
 
@@ -320,10 +320,9 @@ def route_child(spec: str, n: int, n_queries: int, seed: int) -> None:
     }))
 
 
-def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed: int) -> str:
-    """Every method at every size on the tiled route, each in its own child process; the
-    markdown section of results/scaling.md."""
-    load = [os.getloadavg()[0]]
+def measure_route(methods: dict[str, str], sizes: list[int], n_queries: int, seed: int
+                  ) -> dict[str, dict[int, dict[str, float]]]:
+    """Every method at every size on the tiled route of ``seed``, each in its own child process."""
     results: dict[str, dict[int, dict[str, float]]] = {}
     for n in sizes:  # sizes outside, methods inside: the methods at one size run close in time
         for label, spec in methods.items():
@@ -340,6 +339,13 @@ def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed:
             print(f"route {label} n={n}: {m['per_query_ms']:.2f} ms/query, answers {m['answers']}, "
                   f"R@100%P {m['recall_at_100p']:.3f}, build {m['build_s']:.1f} s, peak {m['peak_mb']:.0f} MB",
                   flush=True)
+    return results
+
+
+def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed: int) -> str:
+    """The tiled route of one seed: the markdown section of results/scaling.md."""
+    load = [os.getloadavg()[0]]
+    results = measure_route(methods, sizes, n_queries, seed)
     load.append(os.getloadavg()[0])
     rows = []
     for label, by_size in results.items():
@@ -392,6 +398,39 @@ def route_study(methods: dict[str, str], sizes: list[int], n_queries: int, seed:
     ] if part)
 
 
+def seeds_study(methods: dict[str, str], sizes: list[int], n_queries: int, seeds: list[int]) -> str:
+    """The tiled route drawn from several seeds (tile changes and query stretch): per method and
+    size, mean +- sd (min) over the seeds of the per-query time, the ratio to SeqSLAM's measured
+    in the same seed, R@100%P and the answers accepted; the section "over seeds" of scaling.md."""
+    load = [os.getloadavg()[0]]
+    runs = {seed: measure_route(methods, sizes, n_queries, seed) for seed in seeds}
+    load.append(os.getloadavg()[0])
+
+    def spread(values: list[float], digits: int) -> str:
+        return f"{np.mean(values):.{digits}f} ± {np.std(values):.{digits}f} ({min(values):.{digits}f})"
+
+    rows = []
+    for label in methods:
+        for n in sizes:
+            cells = [runs[seed][label][n] for seed in seeds]
+            ratios = [runs[seed]["seqslam"][n]["per_query_ms"] / runs[seed][label][n]["per_query_ms"]
+                      for seed in seeds if "seqslam" in runs[seed]]
+            rows.append([label, n, len(seeds), spread([c["per_query_ms"] for c in cells], 2),
+                         spread(ratios, 1) if ratios else "-", spread([c["recall_at_100p"] for c in cells], 3),
+                         spread([float(c["accepted"]) for c in cells], 0),
+                         " / ".join(f"{c['per_query_ms']:.2f}" for c in cells)])
+    return "\n\n".join([
+        "## Tiled route over seeds",
+        f"The tiled route above drawn from seeds {', '.join(map(str, seeds))} (each seed its own tile changes and "
+        f"its own stretch of {n_queries} consecutive winter queries of tile 0, before place 2,900); every method at "
+        "every size in its own child process, the methods of one seed one after the other. Mean ± sd (min) over the "
+        "seeds; the ratio is SeqSLAM's per-query time over the method's, both of the same seed. Load (1-min average) "
+        f"{load[0]:.1f} at start, {load[1]:.1f} at the end, on {os.cpu_count()} cores.",
+        table(["method", "map frames n", "seeds", "ms per query (detector)", "SeqSLAM ms / this ms",
+               "R@100%P (queries)", "accepted", "ms per query, each seed"], rows),
+    ])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--study", choices=("route", "cached"), default="route")
@@ -400,6 +439,8 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=None,
                         help="query frames timed per size (route: 300 consecutive; cached: 200)")
     parser.add_argument("--seed", type=int, default=0, help="route study: tile changes and query stretch")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="route study over several seeds (default size 64000): a section of means and spreads")
     parser.add_argument("--method", action="append", default=[], metavar="LABEL=RECIPE[@key=value,...]",
                         help="measure this method (repeatable; default: the five built-in ones)")
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
@@ -410,6 +451,11 @@ def main() -> None:
         return
     if args.route_child:
         route_child(args.route_child[0], int(args.route_child[1]), int(args.route_child[2]), int(args.route_child[3]))
+        return
+    if args.study == "route" and args.seeds:
+        methods = dict(m.split("=", 1) for m in args.method) if args.method else ROUTE_METHODS
+        section = seeds_study(methods, args.sizes or [64000], args.queries or 300, args.seeds)
+        publish("scaling", "How the detectors' cost grows with the map", section, keep_sections=True)
         return
     if args.study == "route":
         methods = dict(m.split("=", 1) for m in args.method) if args.method else ROUTE_METHODS
