@@ -418,6 +418,7 @@ def seeds_study(methods: dict[str, str], sizes: list[int], n_queries: int, seeds
             rows.append([label, n, len(seeds), spread([c["per_query_ms"] for c in cells], 2),
                          spread(ratios, 1) if ratios else "-", spread([c["recall_at_100p"] for c in cells], 3),
                          spread([float(c["accepted"]) for c in cells], 0),
+                         spread([c["distances"] / 1e6 for c in cells], 2) if all(c["distances"] for c in cells) else "-",
                          " / ".join(f"{c['per_query_ms']:.2f}" for c in cells)])
     return "\n\n".join([
         "## Tiled route over seeds",
@@ -427,7 +428,8 @@ def seeds_study(methods: dict[str, str], sizes: list[int], n_queries: int, seeds
         "seeds; the ratio is SeqSLAM's per-query time over the method's, both of the same seed. Load (1-min average) "
         f"{load[0]:.1f} at start, {load[1]:.1f} at the end, on {os.cpu_count()} cores.",
         table(["method", "map frames n", "seeds", "ms per query (detector)", "SeqSLAM ms / this ms",
-               "R@100%P (queries)", "accepted", "ms per query, each seed"], rows),
+               "R@100%P (queries)", "accepted", f"descriptor distances, M ({n_queries} queries)",
+               "ms per query, each seed"], rows),
     ])
 
 
