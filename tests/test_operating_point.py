@@ -10,7 +10,12 @@ import numpy as np
 import pytest
 
 from slamfront.acceptance import Acceptance, AcceptanceConfig, AcceptThreshold
-from slamfront.core.operating_point import query_null_threshold, query_shift_threshold, threshold_at_false_accept_rate
+from slamfront.core.operating_point import (
+    outlier_discounted_threshold,
+    query_null_threshold,
+    query_shift_threshold,
+    threshold_at_false_accept_rate,
+)
 from slamfront.core.temporal_support import supported_confidence
 from slamfront.frame import Frame
 from slamfront.messages import Features, LoopResult, Message
@@ -35,6 +40,48 @@ def test_the_threshold_lets_through_at_most_the_rate_of_wrong_answers() -> None:
     assert threshold_at_false_accept_rate(wrong, 0.0) > wrong.max()
     assert threshold_at_false_accept_rate(np.array([]), 0.01) == 1.0  # nothing seen: accept nothing
     assert threshold_at_false_accept_rate(np.array([0.2, np.nan]), 0.01) == pytest.approx(0.2)
+
+
+def _discounted_reference(threshold: float, decisions: np.ndarray, rate: float) -> float:
+    """outlier_discounted_threshold written out again: a normal fitted by median and MAD."""
+    from scipy.stats import norm
+
+    d = np.sort(decisions)
+    med = np.median(d)
+    spread = 1.4826 * np.median(np.abs(d - med))
+    fitted = med + norm.ppf(1 - rate) * spread
+    if len(d) < 3 or spread == 0 or d[-1] <= fitted:
+        return threshold
+    return min(threshold, max(np.nextafter(d[-2], 1.0), fitted))
+
+
+def test_an_outlying_largest_wrong_decision_is_discounted_down_to_the_fit_or_the_next_one() -> None:
+    rate = 0.01
+    # by hand: median 0.62, MAD 0.01, fit 0.62 + 2.3263 x 0.014826 = 0.6545 < 0.80
+    decisions = [0.60, 0.61, 0.62, 0.63, 0.80]
+    threshold = threshold_at_false_accept_rate(np.asarray(decisions), rate)
+    assert threshold > 0.80
+    assert outlier_discounted_threshold(threshold, decisions, rate) == pytest.approx(0.6545, abs=2e-4)
+    # the largest is no outlier: unchanged
+    assert outlier_discounted_threshold(0.6401, [0.60, 0.61, 0.62, 0.63, 0.64], rate) == 0.6401
+    # the fit falls below the second-largest: only one decision is discounted
+    two_high = [0.60, 0.60, 0.61, 0.70, 0.90]
+    assert outlier_discounted_threshold(0.9001, two_high, rate) == np.nextafter(0.70, 1.0)
+    # never above the threshold given; too few decisions or no spread: unchanged
+    assert outlier_discounted_threshold(0.5, decisions, rate) == 0.5
+    assert outlier_discounted_threshold(0.9001, [0.6, 0.9], rate) == 0.9001
+    assert outlier_discounted_threshold(0.9001, [0.6, 0.6, 0.6, 0.9], rate) == 0.9001
+    assert outlier_discounted_threshold(0.9001, [0.6, 0.62, np.nan, 0.9, 0.61], rate) == pytest.approx(
+        _discounted_reference(0.9001, np.array([0.6, 0.62, 0.9, 0.61]), rate))
+    rng = np.random.default_rng(3)
+    for n in (3, 5, 27):
+        for _ in range(50):
+            d = rng.normal(0.6, 0.02, n)
+            d[rng.integers(n)] += rng.choice([0.0, 0.1])
+            t = threshold_at_false_accept_rate(d, rate)
+            got = outlier_discounted_threshold(t, d, rate)
+            assert got == pytest.approx(_discounted_reference(t, d, rate), abs=1e-12)
+            assert np.sort(d)[-2] < got <= t
 
 
 def test_the_queries_null_only_lowers_the_threshold_to_its_own_quantile() -> None:

@@ -386,3 +386,47 @@ def test_a_calibration_pass_that_sees_no_wrong_answer_is_followed_by_one_a_place
     passes = detector._calibration_starts(int(offsets[-1]), 5)
     assert passes[0] == 5 and len(passes) == 5 and all(p in offsets for p in passes[1:])
     assert passes == sorted(set(passes))
+
+
+# --- the faithful detector: an outlying largest wrong decision is discounted -------------------
+
+
+def test_the_own_threshold_discounts_an_outlying_wrong_decision_only_when_given_decisions() -> None:
+    decisions = [0.60, 0.61, 0.62, 0.63, 0.80]
+    own = [c for c in decisions for _ in range(8)]  # a decision is several frames
+    for score in ("confidence", "confidence_or_supported"):
+        acceptance = Acceptance(HierarchicalFaithful.Config(accept_score=score), "faithful")
+        scored = own if score == "confidence" else [0.0] * len(own)  # on the own confidence, score() is it
+        threshold = acceptance.calibrate_reference(own, scored, decisions)
+        assert threshold == pytest.approx(0.6545, abs=2e-4) and acceptance.reference_threshold == threshold
+        assert acceptance.statistics()["accept_threshold_undiscounted"] > 0.80
+        [logged] = acceptance.messages()
+        assert logged.threshold == threshold and logged.largest_wrong == 0.80
+        assert acceptance.accepts(0.66) and not acceptance.accepts(0.65)
+    plain = Acceptance(HierarchicalFaithful.Config(accept_score="confidence"), "faithful")
+    assert plain.calibrate_reference(own, own) > 0.80 and "accept_threshold_undiscounted" not in plain.statistics()
+    # on the supported confidence alone the decisions' own confidences are not what it thresholds
+    supported = Acceptance(HierarchicalFaithful.Config(accept_score="supported_confidence"), "faithful")
+    assert supported.calibrate_reference(own, own, decisions) > 0.80
+
+
+def test_faithful_hands_over_one_confidence_per_wrong_decision(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[tuple[list[float], list[float] | None]] = []
+    real = Acceptance.calibrate_reference
+
+    def spy(self: Acceptance, own: list[float], scored: list[float], decisions: list[float] | None = None) -> float:
+        seen.append((list(own), decisions))
+        return real(self, own, scored, decisions)
+
+    monkeypatch.setattr(Acceptance, "calibrate_reference", spy)
+    out, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN, accept_discount_outlier=True)
+    off, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN)  # the default: off
+    (own, decisions), (own_off, none) = seen
+    assert none is None and own == own_off and decisions is not None
+    # every wrong frame's confidence is its decision's, and fewer decisions than frames
+    assert set(decisions) == set(own) and len(own) > len(decisions) >= 3
+    [on_logged] = [m for m in out if isinstance(m, AcceptThreshold)]
+    [off_logged] = [m for m in off if isinstance(m, AcceptThreshold)]
+    assert on_logged.threshold <= off_logged.threshold
+    assert [m.confidence for m in out if isinstance(m, LoopResult)] == \
+        [m.confidence for m in off if isinstance(m, LoopResult)]

@@ -18,7 +18,9 @@ Or both (``accept_score: confidence_or_supported``, detectors that offer it): an
 accepted on its own confidence at the usual threshold, or on its supported confidence at that
 score's calibrated threshold but never below a floor, the ``support_floor_quantile`` of the
 reference's wrong answers' own confidences (support counts only from answers more confident
-than most wrong ones).
+than most wrong ones). A detector that judges a sequence of answers at once may also hand
+over its wrong decisions (one confidence each): the threshold then discounts the largest when
+it is an outlier of the others (:func:`~slamfront.core.operating_point.outlier_discounted_threshold`).
 """
 
 from __future__ import annotations
@@ -28,7 +30,12 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from slamfront.core.operating_point import query_null_threshold, query_shift_threshold, threshold_at_false_accept_rate
+from slamfront.core.operating_point import (
+    outlier_discounted_threshold,
+    query_null_threshold,
+    query_shift_threshold,
+    threshold_at_false_accept_rate,
+)
 from slamfront.core.temporal_support import SupportTracker, supported_confidence
 from slamfront.messages import AcceptThreshold, Message
 from slamfront.plugin import PluginConfig
@@ -152,6 +159,8 @@ class Acceptance:
         """Accepted on the own confidence or on the supported one, each at its own threshold."""
         self.support_threshold: float | None = None
         """accept_score: confidence_or_supported: the supported confidence's threshold."""
+        self.undiscounted: float | None = None
+        """The reference's threshold before an outlier decision was discounted (None: no decisions given)."""
         self.on_support = self._support is not None
         """accept: auto on the temporally supported confidence (a :class:`SupportConfig` asks for it)."""
         self._tracker = (None if self._support is None else SupportTracker(
@@ -194,26 +203,34 @@ class Acceptance:
                                     c.support_tolerance_frames, per_step=c.support_per == "decision",
                                     supplies=supplies)
 
-    def calibrate_reference(self, own: list[float], scored: list[float]) -> float:
+    def calibrate_reference(self, own: list[float], scored: list[float],
+                            decisions: list[float] | None = None) -> float:
         """Calibrate on the reference's wrong answers: their own confidences ``own`` and what
         :meth:`score` gave them, ``scored`` (the same answers, in the same order). With
         ``accept_score: confidence_or_supported`` the threshold is on ``own`` and the supported
-        one on ``scored``, never below the floor (``support_floor_quantile`` of ``own``)."""
+        one on ``scored``, never below the floor (``support_floor_quantile`` of ``own``).
+        ``decisions``: the same wrong answers' confidences, one per decision (a detector that
+        judges a sequence at once), when the own threshold is to discount an outlier among them
+        (:func:`outlier_discounted_threshold`)."""
         if not self.either:
-            return self.calibrate(scored, "reference")
+            return self.calibrate(scored, "reference", None if self.on_support else decisions)
         values = np.asarray(own, dtype=np.float64)
         values = values[np.isfinite(values)]
         floor = float(np.quantile(values, self._support.support_floor_quantile)) if len(values) else 1.0  # type: ignore[union-attr]
         self.support_threshold = max(floor, threshold_at_false_accept_rate(
             np.asarray(scored, dtype=np.float64), self._config.false_accept_rate))
-        return self.calibrate(own, "reference")
+        return self.calibrate(own, "reference", decisions)
 
-    def calibrate(self, wrong: np.ndarray | list[float], source: str) -> float:
-        """Set the threshold from the confidences of answers known to be wrong."""
+    def calibrate(self, wrong: np.ndarray | list[float], source: str, decisions: list[float] | None = None) -> float:
+        """Set the threshold from the confidences of answers known to be wrong (``decisions``:
+        the same, one per decision, to discount an outlier among them)."""
         values = np.asarray(wrong, dtype=np.float64)
         values = values[np.isfinite(values)]
         rate = self._config.false_accept_rate
         self.threshold = threshold_at_false_accept_rate(values, rate)
+        if decisions is not None:
+            self.undiscounted = self.threshold
+            self.threshold = outlier_discounted_threshold(self.threshold, decisions, rate)
         self.n_wrong = len(values)
         if source == "reference":
             self.reference_threshold = self._logged = self.threshold
@@ -289,5 +306,6 @@ class Acceptance:
                 "accept_n_query_null": len(self._null),
                 **({"accept_threshold_supported": nan if self.support_threshold is None else self.support_threshold}
                    if self.either else {}),
+                **({"accept_threshold_undiscounted": self.undiscounted} if self.undiscounted is not None else {}),
                 **({"accept_on_supported_confidence": int(self.on_support)}
                    if isinstance(self._config, SupportConfig) else {})}

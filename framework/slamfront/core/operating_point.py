@@ -16,6 +16,8 @@ at or above it is accepted. Pure array functions; the detectors' shared bookkeep
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
 
 from slamfront.core.errors import CoreError
@@ -38,6 +40,31 @@ def threshold_at_false_accept_rate(wrong: np.ndarray, rate: float, margin: float
     allowed = int(np.floor(rate * len(values)))  # wrong answers that may be accepted
     above = float(values[len(values) - 1 - allowed])  # the largest wrong confidence that must be rejected
     return float(min(1.0, np.nextafter(above, np.inf) * margin))
+
+
+def outlier_discounted_threshold(threshold: float, decisions: np.ndarray | list[float], rate: float) -> float:
+    """``threshold`` (from :func:`threshold_at_false_accept_rate`), lowered when the largest of
+    the wrong ``decisions`` (one confidence per decision, for detectors that judge a whole
+    sequence of answers at once) is an outlier of the others.
+
+    With a few dozen decisions and a small ``rate`` the threshold is just above the largest
+    wrong decision, so one decision unlike the rest (a stretch of the reference that looks like
+    another) sets it alone. The decisions are fitted robustly by a normal distribution
+    (median, and 1.4826 x the median absolute deviation as its spread; the modified z-score of
+    Iglewicz and Hoaglin 1993): when the largest lies above that fit's ``1 - rate`` quantile,
+    the threshold is that quantile, but never below the second-largest decision (only one
+    decision is discounted) and never above ``threshold``. Fewer than three decisions, or no
+    spread, leave ``threshold`` as it is."""
+    values = np.sort(np.asarray(decisions, dtype=np.float64).ravel())
+    values = values[np.isfinite(values)]
+    if len(values) < 3 or not 0.0 < rate < 1.0:
+        return float(threshold)
+    median = float(np.median(values))
+    spread = 1.4826 * float(np.median(np.abs(values - median)))
+    fitted = median + NormalDist().inv_cdf(1.0 - rate) * spread
+    if spread <= 0 or values[-1] <= fitted:
+        return float(threshold)
+    return float(min(threshold, max(np.nextafter(values[-2], np.inf), fitted)))
 
 
 def query_null_threshold(reference: float, null: np.ndarray | list[float], rate: float) -> float:

@@ -200,6 +200,16 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             "repeats a stretch of it), the next pass starts one place later (another phase of the grid of query "
             "sequences), up to this many passes; 1: one pass"
         )
+        accept_discount_outlier: bool = Field(
+            False, description="accept: auto with a reference (opt-in): the own confidence's threshold (in effect "
+            "the largest wrong decision's confidence, a decision being 7-13 frames) discounts that largest decision "
+            "when it is an outlier of the others: above the false_accept_rate quantile of a normal fitted to the "
+            "wrong decisions by median and median absolute deviation (Iglewicz and Hoaglin 1993); the threshold "
+            "is then that quantile, never below the second-largest decision. Not the default: it accepted the "
+            "same answers on every design row, and on all 24 generalisation rows it changed one (Nordland "
+            "563-1208, 5 more answers, all right) and met the operating-point rule on no more rows "
+            "(docs/loop_closure.md)"
+        )
 
     def __init__(self, config: Config | None = None) -> None:
         super().__init__(config)
@@ -421,6 +431,14 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._points.append(point)
         self._point_frames.append(frames)
         return self._acceptance.score(*point)
+
+    def _wrong_decisions(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float] | None:
+        """With ``accept_discount_outlier``: the confidence of each of the calibration copy's
+        level-3 decisions that answered any of the ``wrong`` frames."""
+        if not self.config.accept_discount_outlier or not isinstance(copy, HierarchicalFaithful):
+            return None
+        return [point[2] for point, frames in zip(copy._points, copy._point_frames, strict=True)
+                if point[1] >= 0 and any(int(f) in wrong for f in frames)]
 
     def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
         """The calibration copy's decisions scored as the queries' are (supported confidence)."""

@@ -193,6 +193,7 @@ class PlaceSequenceDetector(LoopDetector):
         position = {f: k for k, f in enumerate(frames)}
         own: list[float] = []
         scored: list[float] = []
+        decisions: list[float] | None = []
         sequences = 0
         for start in self._calibration_starts(n, n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)):
             copy, out = self._reference_pass(frames, start, window)
@@ -203,11 +204,13 @@ class PlaceSequenceDetector(LoopDetector):
                      and position[m.frame] - position.get(m.match, -n) > 2 * window]
             own += [m.confidence for m in wrong]
             scored += [scores.get(m.frame, m.confidence) for m in wrong]
+            found = self._wrong_decisions(copy, {m.frame for m in wrong})
+            decisions = None if found is None or decisions is None else decisions + found
             sequences += copy._sequence_distances()
             if own:  # a later pass only when this one saw no wrong answer
                 break
         self._calibration_distances = (pm.search_distances - searched, sequences)
-        self._acceptance.calibrate_reference(own, scored)
+        self._acceptance.calibrate_reference(own, scored, decisions)
 
     def _calibration_starts(self, n: int, start: int) -> list[int]:
         """accept: auto: where the calibration passes over the reference (``n`` frames) start, in
@@ -234,6 +237,12 @@ class PlaceSequenceDetector(LoopDetector):
             previous = place
         out += copy._finish()
         return copy, out
+
+    def _wrong_decisions(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float] | None:
+        """accept: auto: the confidences of the calibration copy's decisions that gave the ``wrong``
+        frames, one per decision, when the threshold is to discount an outlier among them
+        (:func:`slamfront.core.operating_point.outlier_discounted_threshold`); None: it is not."""
+        return None
 
     def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
         """accept: auto: what the threshold is compared with for the calibration copy's answers,
