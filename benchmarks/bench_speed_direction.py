@@ -143,6 +143,16 @@ def read_csv(path: Path) -> dict:
     return results
 
 
+def when(args: argparse.Namespace, load: float) -> str:
+    """How the page's times were taken: which rows this run measured, and how many runs at a time."""
+    if args.from_csv:
+        return "re-rendered from speed_direction.csv"
+    if args.merge:
+        return (f"the rows of {', '.join(args.detectors)} rerun {args.workers} at a time, 1-min load {load:.1f} at "
+                "start; the other rows from speed_direction.csv, measured earlier")
+    return f"1-min load {load:.1f} at start, {args.workers} runs at a time"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=2)
@@ -187,8 +197,7 @@ def main() -> None:
         "`query_timing` (the ground truth follows the frames). Mean ± sd over stretches. The speed-free search "
         f"of `hierarchical_sequence` was designed on the stretch starting at {DESIGN[0]}; the held-out stretches "
         f"start at {', '.join(map(str, args.starts))} (frames {LENGTH} each). Wall time on a shared 2-core machine "
-        f"({'re-rendered from speed_direction.csv' if args.from_csv or args.merge else f'1-min load {load:.1f} at start'}, "
-        f"{args.workers} runs at a time; other engineers' jobs ran beside them): compare within a row group only.\n\n"
+        f"({when(args, load)}; other engineers' jobs ran beside them): compare within a row group only.\n\n"
         f"## Held-out stretches\n\n{table(headers, rows(results, shown, args.starts))}\n\n"
         f"## Design stretch (frames {DESIGN[0]}-{DESIGN[0] + LENGTH - 1})\n\n"
         f"{table(headers, rows(results, shown, DESIGN))}\n\n"
