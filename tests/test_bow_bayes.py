@@ -409,9 +409,9 @@ class SlowStreet:
         return descriptors.astype(np.float32), pixels.astype(np.float32)
 
 
-def _calibrated_on(street: SlowStreet, overlap: str | None) -> dict[str, float | int]:
+def _calibrated_on(street: SlowStreet, overlap: str | None, **params: object) -> dict[str, float | int]:
     """min_inliers: auto calibrated on the street's 160 reference frames (at the first query frame)."""
-    given = {} if overlap is None else {"min_inliers_overlap": overlap}
+    given = {**params, **({} if overlap is None else {"min_inliers_overlap": overlap})}
     detector = BowBayes(_config(accept="auto", accept_exclusion_frames=50, verify="epipolar", **given))
     for index in range(161):
         traversal = "reference" if index < 160 else "query"
@@ -436,3 +436,32 @@ def test_min_inliers_auto_leaves_out_wrong_answers_within_the_references_own_ove
     assert measured["verify_n_wrong"] + measured["verify_n_wrong_within_overlap"] == every["verify_n_wrong"]
     assert measured["verify_overlap_pairs_checked"] > 100 and measured["verify_overlap_seconds"] > 0
     assert 8 <= measured["verify_min_inliers"] <= every["verify_min_inliers"] - 5
+
+
+def test_inlier_minimums_leave_the_top_share_to_the_places_it_involved() -> None:
+    from slamfront_plugins.loop_detectors.bow_thresholds import inlier_minimums
+
+    inliers = [0] * 196 + [9, 9, 14, 15]  # world 0 at dusk's shape: two look-alike answers above the rest
+    places = [(k,) for k in range(196)] + [(1,), (2,), (10, 11), (11, 12)]
+    # rate 0: above every wrong answer, everywhere (the shipped default)
+    assert inlier_minimums(inliers, places, 0.0) == (16, {})
+    # rate 0.01 of 200: two left out -> one more than the third largest (9), and their places keep theirs;
+    # place 11 is involved in both (the larger wins), a place below the level is never listed
+    assert inlier_minimums(inliers, places, 0.01) == (10, {10: 15, 11: 16, 12: 16})
+    # the 8 floor (RTAB-Map's), and a left-out answer at the floor raises nothing above it
+    assert inlier_minimums([0, 0, 3, 8], [(0,), (1,), (2,), (3,)], 0.25) == (8, {3: 9})
+    assert inlier_minimums([], [], 0.01) == (8, {})
+    with pytest.raises(ValueError):
+        inlier_minimums([1, 2], [(0,)], 0.0)
+
+
+def test_min_inliers_rate_lowers_the_minimum_everywhere_and_keeps_it_where_the_wrong_answers_were() -> None:
+    """On the slow street (every wrong reference answer shares some real geometry), leaving the top 5 %
+    to their places lowers the minimum everywhere; the places they involved keep the old one."""
+    every = _calibrated_on(SlowStreet(), None, min_inliers_rate=0.0)
+    assert every["verify_n_places_raised"] == 0 and every["verify_min_inliers_raised_most"] == -1
+    raised = _calibrated_on(SlowStreet(), None, min_inliers_rate=0.05)
+    assert raised["verify_n_wrong"] == every["verify_n_wrong"]
+    assert 8 <= raised["verify_min_inliers"] < every["verify_min_inliers"]
+    assert raised["verify_min_inliers_raised_most"] == every["verify_min_inliers"]
+    assert raised["verify_n_places_raised"] >= 3  # at least one answer's places, with neighbours

@@ -103,3 +103,37 @@ def overlap_extent(distances: Sequence[int], inliers: Sequence[int], far: Sequen
             break
         extent = int(distance)
     return extent
+
+
+# --- min_inliers: auto, a level everywhere and a higher one where a look-alike was seen ----------
+
+MIN_INLIERS_FLOOR = 8
+"""RTAB-Map's VhEp/MatchCountMin: a 7-point fundamental matrix fits any 7 pairs."""
+
+
+def inlier_minimums(inliers: Sequence[int], places: Sequence[Sequence[int]], rate: float,
+                    floor: int = MIN_INLIERS_FLOOR) -> tuple[int, dict[int, int]]:
+    """``min_inliers: auto`` from the RANSAC inliers of answers known to be wrong: the minimum
+    everywhere, and a higher one for the places a high-scoring wrong answer involved.
+
+    The minimum everywhere is one more than the wrong answers' inliers with the largest ``rate`` share
+    of them left out (``floor(rate * n)`` answers; at least ``floor``). A left-out answer is not
+    forgotten: the places it involved (``places[k]``, e.g. the place answered and the place of the
+    frame that answered it) need one more than its inliers. A wrong answer whose pairs fit one
+    fundamental matrix far above what unrelated places reach is a look-alike of those two places
+    (a repeated facade, a sight line), which a query there may repeat; it says little about the
+    rest of the route. With ``rate`` 0 nothing is left out: the minimum is above every wrong answer
+    and no place has its own."""
+    values = np.asarray(inliers, dtype=np.int64)
+    if len(values) != len(places):
+        raise ValueError(f"{len(values)} inlier counts but {len(places)} place lists")
+    if not len(values):
+        return floor, {}
+    allowed = int(np.floor(rate * len(values)))
+    level = max(floor, int(np.sort(values)[len(values) - 1 - allowed]) + 1)
+    local: dict[int, int] = {}
+    for count, involved in zip(values.tolist(), places):
+        if count >= level:
+            for place in involved:
+                local[int(place)] = max(local.get(int(place), level), count + 1)
+    return level, local
