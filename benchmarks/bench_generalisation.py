@@ -128,6 +128,19 @@ MIN_PRECISION = 0.95
 """The least share of accepted answers that must be right at an operating point."""
 
 
+def recall_needed(row: dict) -> float:
+    """The recall at the operating point a row's run needs: half of what its own ranking allows, 0.5 x R@100%P - 0.02."""
+    return 0.5 * float(row["recall_at_100p"]) - 0.02
+
+
+def misses_rule(row: dict) -> bool:
+    """Whether a run's operating point accepts answers less than :data:`MIN_PRECISION` right, or
+    recalls less than :func:`recall_needed` (a run that accepts nothing fails only the second)."""
+    accepted = int(float(row["n_accepted"])) > 0
+    return ((accepted and float(row["precision_at_operating_point"]) < MIN_PRECISION)
+            or float(row["recall_at_operating_point"]) < recall_needed(row))
+
+
 def shortfalls(cells: dict[tuple[str, str], list[dict]], variants: list[str]) -> list[list[object]]:
     """Per detector, the rows where its operating point accepts answers less than
     :data:`MIN_PRECISION` right, or recalls less than 0.5 x its R@100%P - 0.02, as
@@ -138,9 +151,9 @@ def shortfalls(cells: dict[tuple[str, str], list[dict]], variants: list[str]) ->
         for variant in variants:
             for r in (r for g in GROUPS for r in cells.get((method, g), []) if r["variant"] == variant):
                 precision, recall = float(r["precision_at_operating_point"]), float(r["recall_at_operating_point"])
-                needed = 0.5 * float(r["recall_at_100p"]) - 0.02
+                needed = recall_needed(r)
                 accepted = int(float(r["n_accepted"])) > 0
-                if (accepted and precision < MIN_PRECISION) or recall < needed:
+                if misses_rule(r):
                     missed[variant in SHAPED.get(method, set())].append(
                         f"{variant} ({precision:.3f} / {recall:.3f}, needs {needed:.3f})" if accepted
                         else f"{variant} (accepts nothing, needs {needed:.3f})")
