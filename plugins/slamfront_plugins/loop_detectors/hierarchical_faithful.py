@@ -200,8 +200,13 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             "repeats a stretch of it), the next pass starts one place later (another phase of the grid of query "
             "sequences), up to this many passes; 1: one pass"
         )
+        accept_calibration_decisions: int = Field(
+            10, ge=1, description="accept: auto with a reference: the calibration's passes (accept_calibration_passes) "
+            "go on until they have seen this many wrong decisions (the threshold is in effect the largest of them: "
+            "of a few decisions, it is too low as often as too high); 1: until any wrong answer"
+        )
         accept_discount_outlier: bool = Field(
-            False, description="accept: auto with a reference (opt-in): the own confidence's threshold (in effect "
+            True, description="accept: auto with a reference (opt-in): the own confidence's threshold (in effect "
             "the largest wrong decision's confidence, a decision being 7-13 frames) discounts that largest decision "
             "when it is an outlier of the others: above the false_accept_rate quantile of a normal fitted to the "
             "wrong decisions by median and median absolute deviation (Iglewicz and Hoaglin 1993); the threshold "
@@ -433,12 +438,18 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         return self._acceptance.score(*point)
 
     def _wrong_decisions(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float] | None:
-        """With ``accept_discount_outlier``: the confidence of each of the calibration copy's
-        level-3 decisions that answered any of the ``wrong`` frames."""
-        if not self.config.accept_discount_outlier or not isinstance(copy, HierarchicalFaithful):
+        """The confidence of each of the calibration copy's level-3 decisions that answered any of
+        the ``wrong`` frames."""
+        if not isinstance(copy, HierarchicalFaithful):
             return None
         return [point[2] for point, frames in zip(copy._points, copy._point_frames, strict=True)
                 if point[1] >= 0 and any(int(f) in wrong for f in frames)]
+
+    def _calibration_decisions(self) -> int:
+        return self.config.accept_calibration_decisions
+
+    def _discounts_outlier(self) -> bool:
+        return self.config.accept_discount_outlier
 
     def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
         """The calibration copy's decisions scored as the queries' are (supported confidence)."""

@@ -81,6 +81,7 @@ class PlaceSequenceDetector(LoopDetector):
         self._horizon: int | None = None
         """Calibration only: map places at positions from this one on are out of reach."""
         self._calibration_distances = (0, 0)  # (level-1 search, sequences) computed by the calibration
+        self._calibration_seen = (0, 0)  # (passes, wrong decisions; -1: not grouped) of the calibration
         self._query_null_distances = [0, 0]  # (level-1 search, sequences) computed by the queries' null
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
@@ -195,6 +196,8 @@ class PlaceSequenceDetector(LoopDetector):
         scored: list[float] = []
         decisions: list[float] | None = []
         sequences = 0
+        enough = self._calibration_decisions()
+        passes = 0
         for start in self._calibration_starts(n, n - min(2 * n // 3, CALIBRATION_QUERY_FRAMES)):
             copy, out = self._reference_pass(frames, start, window)
             # an answer within two windows of its frame may be the query's own stretch seen just
@@ -207,10 +210,14 @@ class PlaceSequenceDetector(LoopDetector):
             found = self._wrong_decisions(copy, {m.frame for m in wrong})
             decisions = None if found is None or decisions is None else decisions + found
             sequences += copy._sequence_distances()
-            if own:  # a later pass only when this one saw no wrong answer
+            passes += 1
+            # a later pass only when those before saw no wrong answer (or, when the subclass asks for
+            # ``enough`` wrong decisions, fewer than that)
+            if own and (enough <= 1 or (decisions is not None and len(decisions) >= enough)):
                 break
         self._calibration_distances = (pm.search_distances - searched, sequences)
-        self._acceptance.calibrate_reference(own, scored, decisions)
+        self._calibration_seen = (passes, -1 if decisions is None else len(decisions))
+        self._acceptance.calibrate_reference(own, scored, decisions if self._discounts_outlier() else None)
 
     def _calibration_starts(self, n: int, start: int) -> list[int]:
         """accept: auto: where the calibration passes over the reference (``n`` frames) start, in
@@ -240,9 +247,19 @@ class PlaceSequenceDetector(LoopDetector):
 
     def _wrong_decisions(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float] | None:
         """accept: auto: the confidences of the calibration copy's decisions that gave the ``wrong``
-        frames, one per decision, when the threshold is to discount an outlier among them
-        (:func:`slamfront.core.operating_point.outlier_discounted_threshold`); None: it is not."""
+        frames, one per decision (a detector that judges a sequence of frames at once); None: this
+        detector's answers are not grouped in decisions."""
         return None
+
+    def _calibration_decisions(self) -> int:
+        """accept: auto: the calibration runs its passes (:meth:`_calibration_starts`) until it has
+        seen this many wrong decisions (:meth:`_wrong_decisions`); 1: until any wrong answer."""
+        return 1
+
+    def _discounts_outlier(self) -> bool:
+        """accept: auto: whether the threshold discounts an outlier among the wrong decisions
+        (:func:`slamfront.core.operating_point.outlier_discounted_threshold`)."""
+        return False
 
     def _reference_scores(self, copy: PlaceSequenceDetector) -> dict[int, float]:
         """accept: auto: what the threshold is compared with for the calibration copy's answers,
@@ -342,6 +359,8 @@ class PlaceSequenceDetector(LoopDetector):
             "n_distances": search + sequences + calibration + null_search + null_sequences,
             "n_distances_search": search,
             "n_distances_sequences": sequences,
+            "accept_calibration_passes_run": self._calibration_seen[0],
+            "accept_n_wrong_decisions": self._calibration_seen[1],
         }
         for key in (*self.branch_keys, "map_too_small", "no_candidate", "featureless", "no_answer_frames"):
             stats[f"n_{key}"] = self._counts.get(key, 0)
