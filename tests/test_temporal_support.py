@@ -430,3 +430,51 @@ def test_faithful_hands_over_one_confidence_per_wrong_decision(monkeypatch: pyte
     assert on_logged.threshold <= off_logged.threshold
     assert [m.confidence for m in out if isinstance(m, LoopResult)] == \
         [m.confidence for m in off if isinstance(m, LoopResult)]
+
+
+# --- the faithful detector: the calibration goes on until it has seen enough wrong decisions ---
+
+
+def test_calibration_passes_go_on_until_they_have_seen_enough_wrong_decisions(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """accept_calibration_decisions K: passes (other phases of the query-sequence grid) run until
+    the wrong decisions seen reach K, or accept_calibration_passes ran; every pass's wrong
+    decisions are handed over, the first pass's first; the statistics say how many."""
+    starts: list[int] = []
+    detectors: list[HierarchicalFaithful] = []
+    handed: list[list[float]] = []
+    real_pass, real_calibrate = HierarchicalFaithful._reference_pass, Acceptance.calibrate_reference
+
+    def counting(self: HierarchicalFaithful, frames: list[int], start: int, window: int) -> tuple:
+        starts.append(start)
+        detectors.append(self)
+        return real_pass(self, frames, start, window)
+
+    def spy(self: Acceptance, own: list[float], scored: list[float], decisions: list[float] | None = None) -> float:
+        handed.append(list(decisions or []))
+        return real_calibrate(self, own, scored, decisions)
+
+    monkeypatch.setattr(HierarchicalFaithful, "_reference_pass", counting)
+    monkeypatch.setattr(Acceptance, "calibrate_reference", spy)
+
+    def run(k: int) -> tuple[int, list[float], dict]:
+        starts.clear(), detectors.clear(), handed.clear()
+        # the outlier discount on: the wrong decisions are handed over
+        out, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN, accept_calibration_decisions=k,
+                            accept_discount_outlier=True)
+        stats = detectors[0].statistics()
+        assert [m for m in out if isinstance(m, AcceptThreshold)]
+        return len(starts), handed[0], stats
+
+    one, first, stats = run(1)  # until any wrong answer (the default): the first pass sees some
+    assert one == 1 and len(first) >= 3
+    assert stats["accept_calibration_passes_run"] == 1 and stats["accept_n_wrong_decisions"] == len(first)
+    every, seen, stats = run(10**6)  # never enough: every pass runs
+    assert every == HierarchicalFaithful.Config().accept_calibration_passes
+    assert seen[: len(first)] == first and len(seen) > len(first)
+    assert stats["accept_calibration_passes_run"] == every and stats["accept_n_wrong_decisions"] == len(seen)
+    # one more than the first pass saw: the pass that brings it there is the last
+    passes, enough, _ = run(len(first) + 1)
+    assert 2 <= passes < every and len(enough) >= len(first) + 1
+    assert enough == seen[: len(enough)]
