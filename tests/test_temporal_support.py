@@ -273,6 +273,9 @@ def test_faithful_fixed_accept_compares_the_answers_own_confidence() -> None:
         "accept_on_supported_confidence"] == 0
     # the default: the own confidence, or the supported one above its floor (both thresholds calibrated)
     assert HierarchicalFaithful.Config().accept_score == "confidence_or_supported"
+    # ... calibrated over passes until ten wrong decisions, an outlying largest one discounted
+    assert (HierarchicalFaithful.Config().accept_calibration_decisions, HierarchicalFaithful.Config().accept_discount_outlier) \
+        == (10, True)
     default = HierarchicalFaithful().statistics()
     assert default["accept_on_supported_confidence"] == 1 and "accept_threshold_supported" in default
     assert HierarchicalFaithful(HierarchicalFaithful.Config(**OWN)).statistics()["accept_on_supported_confidence"] == 0
@@ -420,7 +423,7 @@ def test_faithful_hands_over_one_confidence_per_wrong_decision(monkeypatch: pyte
 
     monkeypatch.setattr(Acceptance, "calibrate_reference", spy)
     out, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN, accept_discount_outlier=True)
-    off, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN)  # the default: off
+    off, _ = _dusk_like("hierarchical_faithful", 0.6, **OWN, accept_discount_outlier=False)
     (own, decisions), (own_off, none) = seen
     assert none is None and own == own_off and decisions is not None
     # every wrong frame's confidence is its decision's, and fewer decisions than frames
@@ -467,7 +470,7 @@ def test_calibration_passes_go_on_until_they_have_seen_enough_wrong_decisions(
         assert [m for m in out if isinstance(m, AcceptThreshold)]
         return len(starts), handed[0], stats
 
-    one, first, stats = run(1)  # until any wrong answer (the default): the first pass sees some
+    one, first, stats = run(1)  # until any wrong answer: the first pass sees some
     assert one == 1 and len(first) >= 3
     assert stats["accept_calibration_passes_run"] == 1 and stats["accept_n_wrong_decisions"] == len(first)
     every, seen, stats = run(10**6)  # never enough: every pass runs

@@ -201,24 +201,24 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             "sequences), up to this many passes; 1: one pass"
         )
         accept_calibration_decisions: int = Field(
-            1, ge=1, description="accept: auto with a reference: the calibration's passes (accept_calibration_passes) "
+            10, ge=1, description="accept: auto with a reference: the calibration's passes (accept_calibration_passes) "
             "go on until they have seen this many wrong decisions (the own threshold is in effect the largest of "
-            "them; of 2-5, on a short reference, it is too low as often as too high); 1: until any wrong answer. "
-            "Opt-in: 10 with accept_discount_outlier, measured as the default on 111-frame references nobody "
-            "designed on, met the operating-point rule on 12 of 14 rows (10 now) with precision 1.000 wherever it "
-            "accepted, but on the 24 generalisation rows it acts on the 200-frame Nordland chunks and synthetic "
-            "worlds 0 and 2: precision >= 0.95 on every row and the rule met on 22 (20 now), but recall cut on four "
-            "of them by 0.03-0.51, so it is not the default (docs/loop_closure.md)"
+            "them; of the 2-9 one pass sees on a short reference it is too low as often as too high); 1: until any "
+            "wrong answer. With accept_discount_outlier, on 111-frame references nobody designed on: the "
+            "operating-point rule met on 12 of 14 rows (10 with 1), precision 1.000 wherever it accepts (0.719 and "
+            "0.788 on two rows with 1); on the 24 generalisation rows the rule is met on 22 (20 with 1) with "
+            "precision >= 0.95 on every row, at the cost of recall on four of them (by 0.03-0.51, still above "
+            "the rule's need; docs/loop_closure.md)"
         )
         accept_discount_outlier: bool = Field(
-            False, description="accept: auto with a reference (opt-in): the own confidence's threshold (in effect "
+            True, description="accept: auto with a reference: the own confidence's threshold (in effect "
             "the largest wrong decision's confidence, a decision being 7-13 frames) discounts that largest decision "
             "when it is an outlier of the others: above the false_accept_rate quantile of a normal fitted to the "
             "wrong decisions by median and median absolute deviation (Iglewicz and Hoaglin 1993); the threshold "
-            "is then that quantile, never below the second-largest decision. Not the default: it accepted the "
-            "same answers on every design row, and on all 24 generalisation rows it changed one (Nordland "
-            "563-1208, 5 more answers, all right) and met the operating-point rule on no more rows "
-            "(docs/loop_closure.md)"
+            "is then that quantile, never below the second-largest decision. It matters most with "
+            "accept_calibration_decisions, whose further passes bring decisions from other phases of the grid "
+            "(alone, on all 24 generalisation rows it changed one: Nordland 563-1208, 5 more answers, all right; "
+            "docs/loop_closure.md)"
         )
 
     def __init__(self, config: Config | None = None) -> None:
