@@ -209,7 +209,8 @@ def main() -> None:
         "(`resample_m: 1`, Pepperell et al. 2014) before matching.\n\n"
         "![R@100%P per query timing](../../docs/img/speed_direction.png)\n\n"
         "Command: `nice .venv/bin/python benchmarks/bench_speed_direction.py` then "
-        "`... bench_speed_direction.py --merge --detectors smart` (the SMART rows); per-run numbers in "
+        "`... bench_speed_direction.py --merge --detectors smart` (the SMART rows), then `... --merge --detectors "
+        "nordland_hsl_faithful faithful_cone` (the faithful rows, after its operating point changed); per-run numbers in "
         "speed_direction.csv (`--from-csv` re-renders this page and the plot from it).\n"
     )
     publish("speed_direction", "Sequence detectors on re-timed and reversed queries", body)
