@@ -664,9 +664,9 @@ class BowBayes(LoopDetector):
         it involved (:func:`inlier_minimums`)."""
         if self._min_inliers is not None or not self.verifies:
             return
-        values = np.sort(np.asarray(wrong, dtype=np.int64))
+        values = np.asarray(wrong, dtype=np.int64)
         allowed = int(np.floor(self.config.false_accept_rate * len(values)))
-        kept = np.argsort(np.asarray(wrong, dtype=np.int64), kind="stable")[: len(values) - allowed]
+        kept = np.argsort(values, kind="stable")[: len(values) - allowed]  # the largest `allowed` left out
         self._min_inliers, self._place_minimum = inlier_minimums(
             [wrong[k] for k in kept], [places[k] for k in kept], self.config.min_inliers_rate, MIN_INLIERS_FLOOR)
         self._counts["inliers_calibrated_on"] = len(values)
