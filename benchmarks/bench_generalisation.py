@@ -41,6 +41,7 @@ from slamfront.campaign.sweepfile import sweeps_dir  # noqa: E402
 
 SWEEP = sweeps_dir() / "generalisation.yaml"
 IMAGE = Path(__file__).resolve().parent.parent / "docs" / "img" / "generalisation.png"
+OPERATING_IMAGE = IMAGE.with_name("generalisation_operating_points.png")
 GROUPS = {  # variant prefix -> row label, in table order
     "nordland_whole": "Nordland whole route (exp. 1)",
     "nordland_0_2899": "Nordland frames 0-2899 (held out)",
@@ -192,6 +193,49 @@ def plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     plt.close(fig)
 
 
+def plot_operating_points(runs: list[dict], shaped: dict[str, set[str]], path: Path, title: str) -> None:
+    """One panel per detector: each run's recall at its operating point against its R@100%P,
+    with the rule's line (recall >= 0.5 x R@100%P - 0.02); green: the rule is met, red: missed,
+    a cross when the accepted answers are less than :data:`MIN_PRECISION` right; hollow: the row
+    shaped that detector."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = [m for m in METHODS if any(r["method"] == m for r in runs)]
+    fig, axes = plt.subplots(1, len(methods), figsize=(2.3 * len(methods), 2.9), sharex=True, sharey=True,
+                             squeeze=False)
+    line = np.linspace(0, 1, 2)
+    for ax, method in zip(axes[0], methods, strict=True):
+        ax.plot(line, 0.5 * line - 0.02, color="0.4", lw=1, ls="--")
+        ax.fill_between(line, 0, 0.5 * line - 0.02, color="0.92")
+        mine = [r for r in runs if r["method"] == method]
+        for r in mine:
+            x, y = float(r["recall_at_100p"]), float(r["recall_at_operating_point"])
+            precise = int(float(r["n_accepted"])) == 0 or float(r["precision_at_operating_point"]) >= MIN_PRECISION
+            colour = "tab:red" if misses_rule(r) else "tab:green"
+            if not precise:
+                ax.plot(x, y, "x", color=colour, ms=7, mew=1.6)
+            else:
+                hollow = r["variant"] in shaped.get(method, set())
+                ax.plot(x, y, "o", ms=4.5, mec=colour, mfc="none" if hollow else colour, alpha=0.85)
+        met = sum(not misses_rule(r) for r in mine)
+        ax.set_title(f"{method}\nrule met {met} of {len(mine)}", fontsize=8)
+        ax.set_xlim(-0.02, 1.02)
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("R@100%P", fontsize=8)
+    axes[0][0].set_ylabel("recall at its operating point", fontsize=8)
+    fig.suptitle(title + " (grey: under the rule's line; x: accepted answers < 95 % right; hollow: row shaped it)",
+                 fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
@@ -290,6 +334,8 @@ def main() -> None:
                  f"({float(seqslam['n_distances']) / float(frames['n_distances']):.1f}x fewer).")
     if not args.rows:
         plot(cells, IMAGE)
+        plot_operating_points([r for rows in cells.values() for r in rows], SHAPED, OPERATING_IMAGE,
+                              "Every detector's operating point on the 24 generalisation rows")
     body = "\n\n".join([
         f"`nice .venv/bin/python benchmarks/bench_generalisation.py{' --quick' if args.quick else ''}"
         f"{' --methods ' + ' '.join(args.methods) if args.methods else ''}"
@@ -331,7 +377,9 @@ def main() -> None:
         + (table(["detector", "untouched rows", "rows that shaped it"], short) if short else "None."),
         ratio,
         "## Per dataset group\n\n" + "\n\n".join(section for section in sections if section.count("\n") > 3),
-        "" if args.rows else f"![generalisation](../../docs/img/{IMAGE.name})",
+        "" if args.rows else f"![generalisation](../../docs/img/{IMAGE.name})\n\nEvery run's operating point "
+        "against its own ranking (the rule's line dashed):\n\n"
+        f"![operating points](../../docs/img/{OPERATING_IMAGE.name})",
         ("Failed runs:\n\n" + "\n".join(f"- {f}" for f in failed)) if failed else "Every run finished.",
     ])
     if args.rows:

@@ -36,7 +36,15 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_generalisation import METHODS, SWEEP, misses_rule, operating_point, recall_needed, spread  # noqa: E402
+from bench_generalisation import (  # noqa: E402
+    METHODS,
+    SWEEP,
+    misses_rule,
+    operating_point,
+    plot_operating_points,
+    recall_needed,
+    spread,
+)
 from common import publish, table  # noqa: E402
 
 from slamfront.campaign import LocalBackend, run_campaign  # noqa: E402
@@ -44,6 +52,7 @@ from slamfront.campaign import LocalBackend, run_campaign  # noqa: E402
 FRAMES = 111
 SYNTHETIC_SEEDS = (10, 11, 12, 13, 14)
 NORDLAND_STARTS = (880, 1000, 1780, 1900)
+IMAGE = Path(__file__).resolve().parent.parent / "docs" / "img" / "small_references.png"
 SHAPED = {"hierarchical_faithful"}
 """Detectors whose defaults were chosen after seeing this table's rows (marked *): the faithful preset's
 calibration (accept_calibration_decisions, accept_discount_outlier) was made the default after its check here."""
@@ -125,8 +134,12 @@ def main() -> None:
         "## Synthetic street, 111 frames (seeds 10-14, dusk and night)\n\n" + table(headers, summary("synthetic_")),
         "## Nordland, four chunks of 111 frames\n\n" + table(headers, summary("nordland_")),
         "## Every dataset\n\n" + table(["dataset", *METHODS], every),
+        "Every run's operating point against its own ranking (the rule's line dashed):\n\n"
+        f"![operating points](../../docs/img/{IMAGE.name})",
         ("Failed runs:\n\n" + "\n".join(f"- {f}" for f in failed)) if failed else "Every run finished.",
     ])
+    plot_operating_points(runs, {m: set(names) for m in SHAPED}, IMAGE,
+                          f"Every detector's operating point on {len(names)} pairs of {FRAMES}-frame traversals")
     publish("small_references", f"Loop detectors with shipped defaults on {FRAMES}-frame references", body)
 
 

@@ -35,3 +35,27 @@ def test_a_new_section_comes_first(tmp_path: Path) -> None:
     page.write_text("# T\n\n## Old\nold\n\nMachine: box A\n")
     merged = _common().merge_sections(page, "## New\nnew\n")
     assert merged.startswith("## New\nnew") and "## Old (earlier run)" in merged
+
+
+def _generalisation():
+    spec = importlib.util.spec_from_file_location("bench_generalisation", COMMON.parent / "bench_generalisation.py")
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
+def test_the_operating_point_rule_and_its_plot(tmp_path: Path) -> None:
+    bench = _generalisation()
+
+    def run(method: str, r100: float, precision: float, recall: float, accepted: int) -> dict:
+        return dict(method=method, variant="v", recall_at_100p=r100, precision_at_operating_point=precision,
+                    recall_at_operating_point=recall, n_accepted=accepted)
+
+    met = run("seqslam", 0.6, 1.0, 0.3, 30)
+    too_few = run("seqslam", 0.6, 1.0, 0.2, 20)  # needs 0.28
+    wrong = run("bow_bayes", 0.1, 0.9, 0.5, 10)
+    nothing_needed = run("bow_bayes", 0.03, 0.0, 0.0, 0)  # accepts nothing where nothing is needed
+    assert [bench.misses_rule(r) for r in (met, too_few, wrong, nothing_needed)] == [False, True, True, False]
+    path = tmp_path / "points.png"
+    bench.plot_operating_points([met, too_few, wrong, nothing_needed], {"seqslam": {"v"}}, path, "test")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
