@@ -14,7 +14,7 @@ from slamfront.messages import LoopResult, Message
 from slamfront_plugins.loop_detectors.hierarchical_faithful import FaithfulSequenceDecision, HierarchicalFaithful
 from slamfront_plugins.loop_detectors.hierarchical_frames import uniqueness
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
-from tests.hierarchical_helpers import noisy, run_stages
+from tests.hierarchical_helpers import dusk_like_route, run_stages
 
 
 def test_distinctiveness_is_one_minus_the_cost_over_the_best_alternative() -> None:
@@ -79,14 +79,8 @@ def test_the_distinct_threshold_is_calibrated_on_the_wrong_decisions_above_a_flo
 
 
 def _dusk_like(amount: float, **params: Any) -> tuple[list[Message], int, HierarchicalFaithful]:
-    """A route whose places share much of their look, seen again under a strong change
-    (``amount``): every query answer is less confident than the reference's answers to itself."""
-    rng = np.random.default_rng(0)
-    frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
-    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
-    query = noisy(reference, amount, seed=4)
-    vectors = np.concatenate([reference, query])
-    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    """The faithful detector on a route seen again under a strong change (``amount``)."""
+    vectors, traversals = dusk_like_route(amount)
     place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
     detector = HierarchicalFaithful(HierarchicalFaithful.Config(accept_query_null=False, **params))
     return run_stages(vectors, traversals, place_map, detector), 300, detector
