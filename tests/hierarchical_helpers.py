@@ -27,6 +27,18 @@ def noisy(vectors: np.ndarray, amount: float, seed: int = 1) -> np.ndarray:
     return (changed / changed.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
+def dusk_like_route(amount: float) -> tuple[np.ndarray, list[str]]:
+    """A route of 150 places (2 frames each) that share much of their look (less contrast than
+    :func:`route_descriptors`), seen again under a strong change (``amount``): every query answer,
+    right or wrong, is less confident than the reference's answers to itself, as at dusk.
+    Returns the reference's then the query's descriptors and their traversals (300 of each)."""
+    rng = np.random.default_rng(0)
+    frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
+    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
+    query = noisy(reference, amount, seed=4)
+    return np.concatenate([reference, query]), ["reference"] * len(reference) + ["query"] * len(query)
+
+
 def run_stages(
     vectors: np.ndarray,
     traversals: Sequence[str],

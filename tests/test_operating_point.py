@@ -26,7 +26,7 @@ from slamfront_plugins.loop_detectors.hierarchical_sequence import HierarchicalS
 from slamfront_plugins.loop_detectors.nearest_neighbour import NearestNeighbour
 from slamfront_plugins.loop_detectors.seqslam import SeqSlam, SeqSlamFast
 from slamfront_plugins.place_maps.hierarchical import HierarchicalPlaceMap
-from tests.hierarchical_helpers import noisy, route_descriptors, run_stages
+from tests.hierarchical_helpers import dusk_like_route, noisy, route_descriptors, run_stages
 
 # --- the rule -----------------------------------------------------------------------------
 
@@ -346,12 +346,7 @@ def _dusk_like(name: str, amount: float, **params: Any) -> tuple[list[Message], 
     seen again under a strong change (``amount``): every query answer, right or wrong, is less
     confident than the reference's answers to itself, as at dusk. Returns the outputs and the
     reference's length."""
-    rng = np.random.default_rng(0)
-    frames = np.repeat(rng.random((150, 32)), 2, axis=0) + rng.random((300, 32)) * 0.002
-    reference = (frames / frames.sum(axis=1, keepdims=True)).astype(np.float32)
-    query = noisy(reference, amount, seed=4)
-    vectors = np.concatenate([reference, query])
-    traversals = ["reference"] * len(reference) + ["query"] * len(query)
+    vectors, traversals = dusk_like_route(amount)
     if name == "hierarchical_faithful":
         place_map = HierarchicalPlaceMap(HierarchicalPlaceMap.Config(similarity_threshold=0.9))
         # the null is of the answers' own confidence, off by default for the faithful preset

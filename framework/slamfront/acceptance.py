@@ -153,11 +153,20 @@ class Acceptance:
         self._reference_median: float | None = None  # of the reference's wrong confidences (the shift rule)
         self._logged = float("nan")  # the threshold last logged
         self._outbox: list[Message] = []
+        score_kind = str(getattr(config, "accept_score", "confidence"))
         self._support = (config if self.auto and isinstance(config, SupportConfig)
-                         and config.accept_score in ("supported_confidence", "confidence_or_supported") else None)
-        self.either = self._support is not None and config.accept_score == "confidence_or_supported"  # type: ignore[attr-defined]
+                         and score_kind in ("supported_confidence", "confidence_or_supported",
+                                            "confidence_or_supported_or_distinct") else None)
+        self.either = self._support is not None and score_kind.startswith("confidence_or_supported")
         """Accepted on the own confidence or on the supported one, each at its own threshold."""
         self.support_threshold: float | None = None
+        self.distinct = self.auto and score_kind.endswith("_distinct")
+        """Also accepted on the answer's distinctiveness at its own threshold (``accept_score:
+        ..._or_distinct``, detectors that offer it: :func:`~slamfront.core.operating_point.distinctiveness`)."""
+        self.distinct_threshold: float | None = None
+        self.distinct_floor = 0.0
+        """The own confidence an answer accepted on its distinctiveness needs at least."""
+        self.n_wrong_distinct = 0
         """accept_score: confidence_or_supported: the supported confidence's threshold."""
         self.undiscounted: float | None = None
         """The reference's threshold before an outlier decision was discounted (None: no decisions given)."""
@@ -174,12 +183,16 @@ class Acceptance:
     def calibrated(self) -> bool:
         return self.threshold is not None
 
-    def accepts(self, confidence: float, score: float | None = None) -> bool:
+    def accepts(self, confidence: float, score: float | None = None, distinct: float | None = None) -> bool:
         """Whether an answer is accepted: ``confidence`` (or ``score``, what :meth:`score` gave,
         when given) at the threshold; with ``accept_score: confidence_or_supported`` the
-        confidence at the threshold or ``score`` at the supported one."""
+        confidence at the threshold or ``score`` at the supported one; with ``..._or_distinct``
+        also when ``distinct`` (the answer's distinctiveness) reaches its own threshold."""
         if self.threshold is None:
             return False
+        if (self.distinct and distinct is not None and self.distinct_threshold is not None
+                and distinct >= self.distinct_threshold and confidence >= self.distinct_floor):
+            return True
         if self.either and score is not None and self.support_threshold is not None:
             return confidence >= self.threshold or score >= self.support_threshold
         return (confidence if score is None else score) >= self.threshold
@@ -220,6 +233,22 @@ class Acceptance:
         self.support_threshold = max(floor, threshold_at_false_accept_rate(
             np.asarray(scored, dtype=np.float64), self._config.false_accept_rate))
         return self.calibrate(own, "reference", decisions)
+
+    def calibrate_distinct(self, wrong: list[float], own: list[float]) -> float:
+        """``accept_score: ..._or_distinct``: the distinctiveness threshold, at ``false_accept_rate``
+        of the reference's wrong decisions' distinctiveness ``wrong`` (one value per decision; 1,
+        accepting nothing on it, when there is none), and the floor of the own confidence an answer
+        accepted on it needs: the ``distinct_floor_quantile`` of the reference's wrong answers' own
+        confidences ``own`` (a detector's config that offers the score has it; 0: no floor)."""
+        values = np.asarray(wrong, dtype=np.float64)
+        values = values[np.isfinite(values)]
+        self.n_wrong_distinct = len(values)
+        self.distinct_threshold = threshold_at_false_accept_rate(values, self._config.false_accept_rate)
+        confidences = np.asarray(own, dtype=np.float64)
+        confidences = confidences[np.isfinite(confidences)]
+        quantile = float(getattr(self._config, "distinct_floor_quantile", 0.0))
+        self.distinct_floor = float(np.quantile(confidences, quantile)) if quantile > 0 and len(confidences) else 0.0
+        return self.distinct_threshold
 
     def calibrate(self, wrong: np.ndarray | list[float], source: str, decisions: list[float] | None = None) -> float:
         """Set the threshold from the confidences of answers known to be wrong (``decisions``:
@@ -280,7 +309,7 @@ class Acceptance:
         in the first ``accept_calibration_frames``, the threshold set at the first answer after them.
         Returns whether it is accepted. A stream's threshold is on the answers' own confidence
         (so a detector asking for the supported one, or either, reports that it is not used)."""
-        self.on_support = self.either = False
+        self.on_support = self.either = self.distinct = False
         if self.calibrated:
             return self.accepts(confidence)
         if position < self._config.accept_calibration_frames:
@@ -307,5 +336,8 @@ class Acceptance:
                 **({"accept_threshold_supported": nan if self.support_threshold is None else self.support_threshold}
                    if self.either else {}),
                 **({"accept_threshold_undiscounted": self.undiscounted} if self.undiscounted is not None else {}),
+                **({"accept_threshold_distinct": nan if self.distinct_threshold is None else self.distinct_threshold,
+                    "accept_distinct_floor": self.distinct_floor,
+                    "accept_n_wrong_distinct": self.n_wrong_distinct} if self.distinct else {}),
                 **({"accept_on_supported_confidence": int(self.on_support)}
                    if isinstance(self._config, SupportConfig) else {})}

@@ -130,6 +130,26 @@ def uniqueness_confidence(distances: np.ndarray, window: int) -> tuple[np.ndarra
     return best, np.where(np.isfinite(d_best), confidence, np.nan)
 
 
+def distinctiveness(cost: float, alternatives: np.ndarray | list[float]) -> float:
+    """How much better an answer fits than the best alternative elsewhere: ``1 - cost / second``,
+    ``second`` the lowest of the ``alternatives``' costs (answers far enough from this one to be
+    another place; NaN ignored), clipped to [0, 1]. SeqSLAM's uniqueness ratio (Milford and
+    Wyeth 2012), the form of :func:`uniqueness_confidence` for one answer.
+
+    A change of appearance (night, another season) raises every cost about alike, so the ratio
+    drops far less than a confidence taken from the cost alone. 0 when there is no alternative
+    (nothing to tell the answer apart from), when the best alternative costs nothing, or when
+    ``cost`` is NaN; 1 when every alternative costs +inf."""
+    values = np.asarray(alternatives, dtype=np.float64).ravel()
+    values = values[~np.isnan(values)]
+    if not len(values) or np.isnan(cost):
+        return 0.0
+    second = float(values.min())
+    if second <= 0:
+        return 0.0
+    return float(np.clip(1.0 - float(cost) / second, 0.0, 1.0))
+
+
 def self_queries(n: int, window: int, most: int) -> np.ndarray:
     """Positions of a traversal of ``n`` frames to search against the rest of itself, at
     most ``most`` of them, evenly spread (every frame when it has no more than ``most``);

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamfront.core.line_costs import PairDistances
+from slamfront.core.operating_point import distinctiveness
 from slamfront.core.sequences import coarse_to_fine_lengths, cone_speeds, refined_speeds
 
 MIN_INSIDE = 0.5
@@ -257,12 +258,7 @@ def uniqueness(costs: np.ndarray, ends: np.ndarray, best: int, window: int) -> f
     the lowest cost of a candidate ending more than ``window`` map frames from the best;
     0 when there is none (nothing to tell the answer apart from)."""
     far = np.abs(ends - ends[best]) > window
-    if not far.any():
-        return 0.0
-    second = float(costs[far].min())
-    if second <= 0:
-        return 0.0
-    return float(np.clip(1.0 - costs[best] / second, 0.0, 1.0))
+    return distinctiveness(float(costs[best]), costs[far])
 
 
 def line_uniqueness(

@@ -194,6 +194,7 @@ class PlaceSequenceDetector(LoopDetector):
         position = {f: k for k, f in enumerate(frames)}
         own: list[float] = []
         scored: list[float] = []
+        distinct: list[float] = []
         decisions: list[float] | None = []
         sequences = 0
         enough = self._calibration_decisions()
@@ -209,6 +210,7 @@ class PlaceSequenceDetector(LoopDetector):
             scored += [scores.get(m.frame, m.confidence) for m in wrong]
             found = self._wrong_decisions(copy, {m.frame for m in wrong})
             decisions = None if found is None or decisions is None else decisions + found
+            distinct += self._wrong_distinct(copy, {m.frame for m in wrong})
             sequences += copy._sequence_distances()
             passes += 1
             # a later pass only when those before saw no wrong answer (or, when the subclass asks for
@@ -218,6 +220,8 @@ class PlaceSequenceDetector(LoopDetector):
         self._calibration_distances = (pm.search_distances - searched, sequences)
         self._calibration_seen = (passes, -1 if decisions is None else len(decisions))
         self._acceptance.calibrate_reference(own, scored, decisions if self._discounts_outlier() else None)
+        if self._acceptance.distinct:
+            self._acceptance.calibrate_distinct(distinct, own)
 
     def _calibration_starts(self, n: int, start: int) -> list[int]:
         """accept: auto: where the calibration passes over the reference (``n`` frames) start, in
@@ -250,6 +254,11 @@ class PlaceSequenceDetector(LoopDetector):
         frames, one per decision (a detector that judges a sequence of frames at once); None: this
         detector's answers are not grouped in decisions."""
         return None
+
+    def _wrong_distinct(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float]:
+        """accept: auto with ``accept_score: ..._or_distinct``: the distinctiveness of each of the
+        calibration copy's decisions that gave the ``wrong`` frames (none: not offered)."""
+        return []
 
     def _calibration_decisions(self) -> int:
         """accept: auto: the calibration runs its passes (:meth:`_calibration_starts`) until it has
@@ -315,12 +324,13 @@ class PlaceSequenceDetector(LoopDetector):
     # --- answers and bookkeeping -------------------------------------------------------------
 
     def _answer(self, frame: int, match: int, confidence: float, candidates: np.ndarray,
-                score: float | None = None) -> LoopResult:
+                score: float | None = None, distinct: float | None = None) -> LoopResult:
         """The one place an answer is accepted: at the operating point (in a stream, answers to
         its first ``accept_calibration_frames`` frames calibrate it and are not accepted), on
-        ``score`` when given (paired traversals: :meth:`Acceptance.score`), else the confidence."""
+        ``score`` when given (paired traversals: :meth:`Acceptance.score`), else the confidence,
+        or on ``distinct`` (its distinctiveness) when the operating point takes it."""
         accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
-                    else self._acceptance.accepts(confidence, score))
+                    else self._acceptance.accepts(confidence, score, distinct))
         return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)
 
     def _featureless(self, frame: int) -> LoopResult:
