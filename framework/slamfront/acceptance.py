@@ -160,6 +160,7 @@ class Acceptance:
         self.either = self._support is not None and score_kind.startswith("confidence_or_supported")
         """Accepted on the own confidence or on the supported one, each at its own threshold."""
         self.support_threshold: float | None = None
+        """accept_score: confidence_or_supported: the supported confidence's threshold."""
         self.distinct = self.auto and score_kind.endswith("_distinct")
         """Also accepted on the answer's distinctiveness at its own threshold (``accept_score:
         ..._or_distinct``, detectors that offer it: :func:`~slamfront.core.operating_point.distinctiveness`)."""
@@ -167,7 +168,7 @@ class Acceptance:
         self.distinct_floor = 0.0
         """The own confidence an answer accepted on its distinctiveness needs at least."""
         self.n_wrong_distinct = 0
-        """accept_score: confidence_or_supported: the supported confidence's threshold."""
+        """How many wrong reference decisions the distinctiveness threshold was calibrated on."""
         self.undiscounted: float | None = None
         """The reference's threshold before an outlier decision was discounted (None: no decisions given)."""
         self.on_support = self._support is not None
