@@ -53,13 +53,19 @@ def _results(outputs) -> dict[int, LoopResult]:  # type: ignore[no-untyped-def]
 @pytest.mark.parametrize("mode", ["faithful", "frames"])
 def test_every_query_frame_is_answered_once_online_and_correctly(mode: str) -> None:
     vectors, traversals, n_reference = _paired(n_places=40)
-    outputs, timeline, detector = _detect(vectors, traversals, mode=mode)
+    outputs, timeline, detector = _detect(vectors, traversals, mode=mode, accept_query_null_wait=False)
     results = _results(outputs)
     assert sorted(results) == list(range(n_reference, len(vectors)))
     # online: most answers come out while frames arrive, not at the end (frames mode answers
     # each sequence when the next one is compared: the last one at the end)
     during = sum(len([m for m in produced if isinstance(m, LoopResult)]) for frame, produced in timeline if frame >= 0)
     assert during >= 0.75 * len(results)
+    if mode == "frames":  # and when its answers wait for the queries' null, at most accept_query_null_frames late
+        _, waited_timeline, waited = _detect(vectors, traversals, mode=mode, accept_query_null_wait=True)
+        limit = waited.config.accept_query_null_frames + 2 * FRAMES_PER_PLACE * waited.config.rho
+        late = [frame - message.frame for frame, produced in waited_timeline if frame >= 0
+                for message in produced if isinstance(message, LoopResult)]
+        assert late and max(late) <= limit and waited.statistics()["accept_answers_waited"] > 0
     # an answer never comes before its query frame arrived
     for frame, produced in timeline:
         for message in produced:

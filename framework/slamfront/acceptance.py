@@ -80,6 +80,13 @@ class AcceptanceConfig(PluginConfig):
         50, ge=1, description="accept_query_null: query frames with a leave-the-answer-out confidence needed "
         "before it may move the threshold"
     )
+    accept_query_null_wait: bool = Field(
+        True, description="accept_query_null, detectors that support it: answers given before the queries' null "
+        "is ready wait for it and are decided at its threshold (they come up to accept_query_null_frames query "
+        "frames late; at the end of the traversal, at the threshold then), so the first query frames are judged "
+        "as the rest are (on a 111-frame traversal they are a third of it); false: each decided at once, at the "
+        "reference's threshold until the null is ready"
+    )
 
     @field_validator("accept")
     @classmethod
@@ -276,6 +283,13 @@ class Acceptance:
         """Whether :meth:`query_null` is used (a detector may skip the extra search otherwise)."""
         return (self.auto and self._config.accept_query_null and self.reference_threshold is not None
                 and not self.on_support)  # the null is of answers' own confidences
+
+    @property
+    def waits_for_query_null(self) -> bool:
+        """Whether an answer given now is to wait for the queries' null (``accept_query_null_wait``):
+        the null is wanted and has fewer than ``accept_query_null_frames`` values yet."""
+        return (self.wants_query_null and self._config.accept_query_null_wait
+                and len(self._null) < self._config.accept_query_null_frames)
 
     def query_null(self, confidence: float, frames: int = 1) -> None:
         """A query's leave-the-answer-out confidence (the detector's answer with the answered

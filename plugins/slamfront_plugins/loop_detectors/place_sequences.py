@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 from pydantic import Field
@@ -83,6 +84,10 @@ class PlaceSequenceDetector(LoopDetector):
         self._calibration_distances = (0, 0)  # (level-1 search, sequences) computed by the calibration
         self._calibration_seen = (0, 0)  # (passes, wrong decisions; -1: not grouped) of the calibration
         self._query_null_distances = [0, 0]  # (level-1 search, sequences) computed by the queries' null
+        self._undecided: dict[int, tuple[float | None, float | None]] = {}
+        """accept_query_null_wait: query frame -> (score, distinctiveness) of answers not decided yet."""
+        self._held_back: list[LoopResult] = []  # answers held back until those are decided
+        self._n_waited = 0
 
     def check(self, stages: Mapping[str, Plugin]) -> None:
         place_map = stages.get("place_map")
@@ -112,10 +117,11 @@ class PlaceSequenceDetector(LoopDetector):
             if isinstance(assignment, PlaceAssignment) and self._awaiting and assignment.frame == self._awaiting[0][0]:
                 _, traversal = self._awaiting.popleft()
                 out += self._placed(assignment.frame, traversal, assignment.place, assignment.new_place)
+        out = self._release(out)
         return [*self._acceptance.messages(), *out]
 
     def finish(self) -> Sequence[Message]:
-        out = self._finish()
+        out = self._release(self._finish(), ending=True)
         self._acceptance.finish()
         return [*self._acceptance.messages(), *out]
 
@@ -329,9 +335,41 @@ class PlaceSequenceDetector(LoopDetector):
         its first ``accept_calibration_frames`` frames calibrate it and are not accepted), on
         ``score`` when given (paired traversals: :meth:`Acceptance.score`), else the confidence,
         or on ``distinct`` (its distinctiveness) when the operating point takes it."""
-        accepted = (self._acceptance.stream_answer(self._query_position[frame], confidence) if self._stream
-                    else self._acceptance.accepts(confidence, score, distinct))
+        if self._stream:
+            accepted = self._acceptance.stream_answer(self._query_position[frame], confidence)
+        elif self._acceptance.waits_for_query_null:  # decided when the queries' null is ready (_release)
+            self._undecided[frame] = (score, distinct)
+            accepted = False
+        else:
+            accepted = self._acceptance.accepts(confidence, score, distinct)
         return LoopResult(frame=frame, match=match, confidence=confidence, accepted=accepted, candidates=candidates)
+
+    def _release(self, out: list[Message], ending: bool = False) -> list[Message]:
+        """accept_query_null_wait: the answers given while the queries' null was not ready are held
+        back (with every answer after them, so that answers keep their order) and decided at its
+        threshold once it is; one that has waited ``accept_query_null_frames`` query frames (the
+        null may never be ready on a short traversal), or when the traversal ends (``ending``), at
+        the threshold then."""
+        if not self._held_back and not self._undecided:
+            return out
+        kept: list[Message] = []
+        for message in out:
+            (self._held_back if isinstance(message, LoopResult) else kept).append(message)
+        if ending or not self._acceptance.waits_for_query_null:
+            due = len(self._held_back)
+        else:  # only those that waited long enough
+            oldest = self._query_frames - self.config.accept_query_null_frames
+            due = next((k for k, r in enumerate(self._held_back) if self._query_position.get(r.frame, 0) > oldest),
+                       len(self._held_back))
+        released = []
+        for result in self._held_back[:due]:
+            if result.frame in self._undecided:
+                result = replace(result, accepted=self._acceptance.accepts(result.confidence,
+                                                                           *self._undecided.pop(result.frame)))
+                self._n_waited += 1
+            released.append(result)
+        self._held_back = self._held_back[due:]
+        return kept + released
 
     def _featureless(self, frame: int) -> LoopResult:
         self._count("featureless")
@@ -371,6 +409,7 @@ class PlaceSequenceDetector(LoopDetector):
             "n_distances_sequences": sequences,
             "accept_calibration_passes_run": self._calibration_seen[0],
             "accept_n_wrong_decisions": self._calibration_seen[1],
+            "accept_answers_waited": self._n_waited,
         }
         for key in (*self.branch_keys, "map_too_small", "no_candidate", "featureless", "no_answer_frames"):
             stats[f"n_{key}"] = self._counts.get(key, 0)
