@@ -26,7 +26,10 @@ What shaped what (from the project's history; see docs/results.md):
   measured on the jump rows and the demo worlds;
 - the cone of speeds (``speed_search: cone``) was designed on Nordland 2900-3499 re-timed and is
   measured against the fixed-speed lines on the jump rows (none of them changes pace: the cone's
-  own test is ``bench_speed_direction.py``).
+  own test is ``bench_speed_direction.py``); ``cone_near_anchor`` was designed on the four design
+  jump variants, the jump variant reordered 300-399 and the rows that shaped the frame-level detector
+  (bench_generalisation.py's SHAPED), which include the operating point's design rows and the
+  first chunk of 200, measured here on the jump rows too.
 
 The shipped defaults also run on the whole route and experiments 2 and 3 (marked: they
 shaped everything), so the table holds the detector's numbers on all 24 generalisation rows.
@@ -123,6 +126,8 @@ SETTINGS = [
     Setting("sequence_frames", "sequence_frames: 80", ["loop_detector.params.sequence_frames=80"]),
     Setting("speed_search (cone)", "speed_search: lines (fixed-speed lines vmin..vmax, the default before the cone)",
             ["loop_detector.params.speed_search=lines"], rows="jumps"),
+    Setting("cone_near_anchor (on)", "cone_near_anchor: false (the cone's stages on the window's last rows)",
+            ["loop_detector.params.cone_near_anchor=false"], rows="jumps"),
     Setting("vmin, vmax", "vmin = vmax = 1", ["loop_detector.params.vmin=1.0", "loop_detector.params.vmax=1.0"]),
     Setting("vmin, vmax", "vmin 0.6, vmax 1.6", ["loop_detector.params.vmin=0.6", "loop_detector.params.vmax=1.6"]),
     Setting("anchor_slack", "anchor_slack: 0", ["loop_detector.params.anchor_slack=0"]),

@@ -261,3 +261,36 @@ def test_faithful_cone_follows_a_retimed_or_reversed_query_the_letter_loses(timi
     if timing != "double":  # 2-frame places: at double pace the letter still steps one place per place
         letter, _ = right()  # the default: Rodrigues 2019's letter
         assert letter < 0.5 * cone
+
+
+def test_the_cone_scores_each_stage_near_the_anchor_when_the_window_goes_past_the_map() -> None:
+    """``cone_near_anchor``: a long query sequence that straddles a jump in the map. The track
+    is anchored where the last answer ended, the window's first row, near the map's end; its
+    first 30 frames run on to the map's end, its last 10 show the map's start (the route
+    jumped back). Scored on the window's last rows, every line at the map's pace through the
+    anchor has left the map there, and the cone never finds the right one; scored on the rows
+    nearest the anchor, it does (and the full window keeps 30 of 40 rows inside)."""
+    from slamfront_plugins.loop_detectors.hierarchical_frames import Cone, PairDistances, cone_trajectory, rows_near
+
+    map_vectors = route_descriptors(120, 1, seed=11)
+    truth = np.concatenate([np.arange(90, 120), np.arange(0, 10)])  # query position t shows map frame truth[t]
+    query = noisy(map_vectors[truth], 0.05, seed=12)
+    rows = np.arange(40)
+    found = {}
+    for near in (False, True):
+        pairs = PairDistances(lambda t, m: np.abs(query[t] - map_vectors[m]).sum(axis=1), 200)
+        cone = Cone(0.4, 2.5, (1.0, -1.0), 8, 4, near_anchor=near)
+        found[near] = cone_trajectory(pairs, rows, 0, (91, 91), 2, cone, len(map_vectors))
+    right = found[True]
+    assert right is not None and abs(right.speed - 1.0) <= 1 / 40 and right.rows == 30
+    assert np.array_equal(right.at(np.arange(30)), truth[:30])
+    wrong = found[False]
+    assert wrong is None or not np.array_equal(wrong.at(np.arange(30)), truth[:30])
+    # the stages: the window's last rows unless the anchor lies before them
+    assert rows_near(rows, 36, 8).tolist() == list(range(32, 40))
+    assert rows_near(rows, 0, 8).tolist() == list(range(8))
+    assert rows_near(rows, 20, 16).tolist() == list(range(20, 36))
+    assert rows_near(rows, 5, 80) is rows
+    # the detector's default, and the switch back to the window's last rows
+    assert HierarchicalSequence(HierarchicalSequence.Config())._cone.near_anchor  # type: ignore[union-attr]
+    assert not HierarchicalSequence(HierarchicalSequence.Config(cone_near_anchor=False))._cone.near_anchor  # type: ignore[union-attr]

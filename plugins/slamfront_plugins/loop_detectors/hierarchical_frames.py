@@ -173,6 +173,24 @@ class Cone:
     """Query frames of the coarse stage (the lines nearest the anchor; doubled per stage)."""
     keep: int
     """Lines kept from one stage to the next."""
+    near_anchor: bool = False
+    """Each stage compares the rows nearest the anchor (:func:`rows_near`) rather than the
+    window's last rows: they differ for an anchor before the last ``first`` rows (the track,
+    anchored where the last answer ended, after a long query sequence)."""
+
+
+def rows_near(rows: np.ndarray, anchor_query: int, n: int) -> np.ndarray:
+    """The ``n`` consecutive ``rows`` (ascending query positions) nearest ``anchor_query``:
+    the last ``n``, unless the anchor lies before them, then the ``n`` from the anchor on.
+
+    A line is pinned at its anchor, so over frames near it every speed of the cone stays
+    in the map and is told apart by the descriptors; far from it the lines fan out, and
+    where the route left the map (the map's end, a stretch the map holds elsewhere) the
+    right line is not even scored there."""
+    if n >= len(rows):
+        return rows
+    start = min(int(np.searchsorted(rows, anchor_query)), len(rows) - n)
+    return rows[start:start + n]
 
 
 def cone_trajectory(
@@ -209,18 +227,22 @@ def cone_trajectory(
         return None
     lengths = coarse_to_fine_lengths(cone.first, len(rows))[:stages]
     shifts = np.arange(-slack, slack + 1, dtype=np.int64)
+
+    def stage(n: int) -> np.ndarray:
+        return rows_near(rows, anchor_query, n) if cone.near_anchor else rows[-n:]
+
     found: list[Trajectory] = []
     for sign in cone.directions:
         anchor_map = anchors[0] if sign > 0 else anchors[1]
         velocities = sign * cone_speeds(cone.low, cone.high, lengths[0], False)
-        found += _lines(distances, rows[-lengths[0]:], anchor_query, anchor_map, shifts, velocities, n_map,
+        found += _lines(distances, stage(lengths[0]), anchor_query, anchor_map, shifts, velocities, n_map,
                         map_informative, cone.keep)
     for coarse, fine in zip(lengths[:-1], lengths[1:]):
         kept = sorted(found, key=lambda t: t.cost)[: cone.keep]
         found = []
         for line in kept:
             velocities = refined_speeds(line.speed, coarse, fine, cone.low, cone.high)
-            found += _lines(distances, rows[-fine:], anchor_query, line.anchor_map, np.arange(-1, 2), velocities,
+            found += _lines(distances, stage(fine), anchor_query, line.anchor_map, np.arange(-1, 2), velocities,
                             n_map, map_informative, cone.keep)
     return min(found, key=lambda t: t.cost) if found else None
 
@@ -345,7 +367,8 @@ def compare_candidates(
                                    n_map, map_informative)
         if screening:
             return cone_trajectory(distances, compared, t, (m, backwards[k]), slack,
-                                   Cone(cone.low, cone.high, cone.directions, screen_frames, cone.keep), n_map,
+                                   Cone(cone.low, cone.high, cone.directions, screen_frames, cone.keep, cone.near_anchor),
+                                   n_map,
                                    map_informative, stages=1)
         return cone_trajectory(distances, compared, t, (m, backwards[k]), slack, cone, n_map, map_informative)
 

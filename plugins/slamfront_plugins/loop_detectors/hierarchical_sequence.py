@@ -105,6 +105,12 @@ class HierarchicalSequence(PlaceSequenceDetector):
             8, ge=2, description="speed_search cone: query frames of the coarse stage (doubled per stage)"
         )
         cone_keep: int = Field(4, ge=1, description="speed_search cone: lines kept from one stage to the next")
+        cone_near_anchor: bool = Field(
+            True, description="speed_search cone: each coarse-to-fine stage compares the query frames nearest the "
+            "candidate's anchor rather than the window's last ones (they differ for the track after a long query "
+            "sequence: there the lines fan out and the right one may have left the map; designed on held-out "
+            "jump variants inside Nordland 2900-3575)"
+        )
         cone_settle: int = Field(
             3, ge=0, description="speed_search cone: after this many consistent answers in a row, the cone narrows "
             "to the speed and direction they settled on (their median speed divided and multiplied by "
@@ -224,7 +230,7 @@ class HierarchicalSequence(PlaceSequenceDetector):
         self._map_frames = GrowingRows(1, dtype=np.int64)  # per map-frame position: its frame, grown alike
         self._speeds = speeds(c.vmin, c.vmax, c.sequence_frames)
         self._cone = Cone(c.cone_low, c.cone_high, (1.0, -1.0) if c.reverse else (1.0,), c.cone_first,
-                          c.cone_keep) if c.speed_search == "cone" else None
+                          c.cone_keep, c.cone_near_anchor) if c.speed_search == "cone" else None
         self._stationary_limit: float | None = None  # calibrated at the first query frame
         self._moved = False  # the query has moved since its first frame
         self._still_limit = 0.0  # still times the map's 5th-percentile step (calibrated with stationary)
