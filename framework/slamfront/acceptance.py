@@ -141,6 +141,12 @@ class SupportConfig(AcceptanceConfig):
         return self
 
 
+def _finite(values: np.ndarray | list[float]) -> np.ndarray:
+    """The finite ones of ``values``, as float64."""
+    values = np.asarray(values, dtype=np.float64)
+    return values[np.isfinite(values)]
+
+
 class Acceptance:
     """One detector's operating point: fixed, or calibrated once from wrong answers.
 
@@ -235,8 +241,7 @@ class Acceptance:
         (:func:`outlier_discounted_threshold`)."""
         if not self.either:
             return self.calibrate(scored, "reference", None if self.on_support else decisions)
-        values = np.asarray(own, dtype=np.float64)
-        values = values[np.isfinite(values)]
+        values = _finite(own)
         floor = float(np.quantile(values, self._support.support_floor_quantile)) if len(values) else 1.0  # type: ignore[union-attr]
         self.support_threshold = max(floor, threshold_at_false_accept_rate(
             np.asarray(scored, dtype=np.float64), self._config.false_accept_rate))
@@ -248,12 +253,10 @@ class Acceptance:
         accepting nothing on it, when there is none), and the floor of the own confidence an answer
         accepted on it needs: the ``distinct_floor_quantile`` of the reference's wrong answers' own
         confidences ``own`` (a detector's config that offers the score has it; 0: no floor)."""
-        values = np.asarray(wrong, dtype=np.float64)
-        values = values[np.isfinite(values)]
+        values = _finite(wrong)
         self.n_wrong_distinct = len(values)
         self.distinct_threshold = threshold_at_false_accept_rate(values, self._config.false_accept_rate)
-        confidences = np.asarray(own, dtype=np.float64)
-        confidences = confidences[np.isfinite(confidences)]
+        confidences = _finite(own)
         quantile = float(getattr(self._config, "distinct_floor_quantile", 0.0))
         self.distinct_floor = float(np.quantile(confidences, quantile)) if quantile > 0 and len(confidences) else 0.0
         return self.distinct_threshold
@@ -261,8 +264,7 @@ class Acceptance:
     def calibrate(self, wrong: np.ndarray | list[float], source: str, decisions: list[float] | None = None) -> float:
         """Set the threshold from the confidences of answers known to be wrong (``decisions``:
         the same, one per decision, to discount an outlier among them)."""
-        values = np.asarray(wrong, dtype=np.float64)
-        values = values[np.isfinite(values)]
+        values = _finite(wrong)
         rate = self._config.false_accept_rate
         self.threshold = threshold_at_false_accept_rate(values, rate)
         if decisions is not None:

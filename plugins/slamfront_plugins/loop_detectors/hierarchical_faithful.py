@@ -515,21 +515,25 @@ class HierarchicalFaithful(PlaceSequenceDetector):
         self._point_distinct.append(distinct)
         return self._acceptance.score(*point)
 
+    @staticmethod
+    def _wrong_calls(copy: HierarchicalFaithful, wrong: set[int]) -> list[int]:
+        """Indices of the calibration copy's level-3 calls that answered any of the ``wrong`` frames."""
+        return [k for k, (point, frames) in enumerate(zip(copy._points, copy._point_frames, strict=True))
+                if point[1] >= 0 and any(int(f) in wrong for f in frames)]
+
     def _wrong_decisions(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float] | None:
         """The confidence of each of the calibration copy's level-3 decisions that answered any of
         the ``wrong`` frames."""
         if not isinstance(copy, HierarchicalFaithful):
             return None
-        return [point[2] for point, frames in zip(copy._points, copy._point_frames, strict=True)
-                if point[1] >= 0 and any(int(f) in wrong for f in frames)]
+        return [copy._points[k][2] for k in self._wrong_calls(copy, wrong)]
 
     def _wrong_distinct(self, copy: PlaceSequenceDetector, wrong: set[int]) -> list[float]:
         """The distinctiveness of each of the calibration copy's level-3 decisions that answered any
         of the ``wrong`` frames (as :meth:`_wrong_decisions`)."""
         if not isinstance(copy, HierarchicalFaithful):
             return []
-        return [d for point, frames, d in zip(copy._points, copy._point_frames, copy._point_distinct, strict=True)
-                if point[1] >= 0 and any(int(f) in wrong for f in frames)]
+        return [copy._point_distinct[k] for k in self._wrong_calls(copy, wrong)]
 
     def _calibration_decisions(self) -> int:
         return self.config.accept_calibration_decisions

@@ -214,9 +214,10 @@ class PlaceSequenceDetector(LoopDetector):
                      and position[m.frame] - position.get(m.match, -n) > 2 * window]
             own += [m.confidence for m in wrong]
             scored += [scores.get(m.frame, m.confidence) for m in wrong]
-            found = self._wrong_decisions(copy, {m.frame for m in wrong})
+            wrong_frames = {m.frame for m in wrong}
+            found = self._wrong_decisions(copy, wrong_frames)
             decisions = None if found is None or decisions is None else decisions + found
-            distinct += self._wrong_distinct(copy, {m.frame for m in wrong})
+            distinct += self._wrong_distinct(copy, wrong_frames)
             sequences += copy._sequence_distances()
             passes += 1
             # a later pass only when those before saw no wrong answer (or, when the subclass asks for
