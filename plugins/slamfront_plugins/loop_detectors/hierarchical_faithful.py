@@ -368,7 +368,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                 self._settled = []
         match = match_frames(
             query, informative, dispatch.sequence, pm.place_offsets(),
-            lambda start, stop: pm.vectors(pm.map_frames_at(np.arange(start, stop))), pm.metric,
+            self._map_vectors, pm.metric,
             self._last_matched, dispatch.synthetic, speed=None if self._speeds is None else speed,
             query_places=len(iteration.places),
         )
@@ -430,7 +430,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                 continue
             alternative = match_frames(
                 query, informative, sequence, offsets,
-                lambda first, last: pm.vectors(pm.map_frames_at(np.arange(first, last))), pm.metric,
+                self._map_vectors, pm.metric,
                 None, False, speed=None if self._speeds is None else float(path_speed),
                 query_places=len(iteration.places),
             )
@@ -443,6 +443,11 @@ class HierarchicalFaithful(PlaceSequenceDetector):
                 return distinctiveness(match.mean_distance, [alternative.mean_distance])
         self._count("distinct_none")
         return 0.0
+
+    def _map_vectors(self, start: int, stop: int) -> np.ndarray:
+        """The descriptors of the map frames at positions ``start..stop-1`` (level 3's template)."""
+        pm = self.place_map
+        return pm.vectors(pm.map_frames_at(np.arange(start, stop)))
 
     def _leave_answer_out(
         self, iteration: _Iteration, query: np.ndarray, informative: np.ndarray, answered: np.ndarray, speed: float
@@ -468,7 +473,7 @@ class HierarchicalFaithful(PlaceSequenceDetector):
             for sequence, path_speed in zip(ranked, speeds, strict=True):
                 match = match_frames(
                     query, informative, sequence, pm.place_offsets(),
-                    lambda start, stop: pm.vectors(pm.map_frames_at(np.arange(start, stop))), pm.metric,
+                    self._map_vectors, pm.metric,
                     None, False, speed=None if self._speeds is None else float(path_speed),
                     query_places=len(iteration.places),
                 )
