@@ -368,6 +368,20 @@ def build_cases(tmp: Path, log: Path) -> dict[str, Case]:  # noqa: PLR0915 (one 
     deep = tmp / "deep.yaml"
     deep.write_text("name: " + "[" * 20000 + "]" * 20000 + "\n")
     cases["yaml_deep_nesting"] = Case(["run", deep], ("deep.yaml", "nested too deeply"), inputs=(deep,))
+    # libyaml's composer recurses once per level: 60,000 levels crashed the interpreter (exit 139,
+    # no message) before the depth check; the parser's events are now checked first
+    deeper = tmp / "deeper.yaml"
+    deeper.write_text("name: " + "[" * 60000 + "]" * 60000 + "\n")
+    cases["yaml_deeper_nesting"] = Case(["run", deeper], ("deeper.yaml", "nested too deeply"), inputs=(deeper,))
+    deep_map = tmp / "deep_map.yaml"
+    deep_map.write_text("name: " + "{a: " * 60000 + "1" + "}" * 60000 + "\n")
+    cases["yaml_deep_mapping"] = Case(["run", deep_map], ("deep_map.yaml", "nested too deeply"), inputs=(deep_map,))
+    cases["set_deep_nesting"] = Case(["run", "demo", "--set", "name=" + "[" * 60000 + "]" * 60000],
+                                     ("--set", "nested too deeply"))
+    deep_sweep = tmp / "deep_sweep.yaml"
+    deep_sweep.write_text("name: s\nrecipe: demo\ngrid: " + "[" * 60000 + "]" * 60000 + "\n")
+    cases["sweep_deep_nesting"] = Case(["sweep", deep_sweep, "--dry-run"], ("deep_sweep.yaml", "nested too deeply"),
+                                       inputs=(deep_sweep,))
     sweep_bomb = tmp / "sweep_bomb.yaml"
     sweep_bomb.write_text("\n".join(laughs) + "\nname: s\nrecipe: demo\n")
     cases["sweep_alias_bomb"] = Case(["sweep", sweep_bomb, "--dry-run"], ("aliases expanded",), inputs=(sweep_bomb,))
@@ -564,7 +578,8 @@ CASE_NAMES = [
     "replay_onto_a_hard_link_of_its_input", "replay_onto_a_symbolic_link_to_its_input",
     "inspect_recipe_neutralises_terminal_escapes", "inspect_summary_neutralises_terminal_escapes",
     "match_file_entries_stay_in_the_dataset_folder",
-    "yaml_alias_bomb", "yaml_recursive_alias", "yaml_deep_nesting", "sweep_alias_bomb", "sweep_of_a_billion_runs",
+    "yaml_alias_bomb", "yaml_recursive_alias", "yaml_deep_nesting", "yaml_deeper_nesting", "yaml_deep_mapping",
+    "set_deep_nesting", "sweep_deep_nesting", "sweep_alias_bomb", "sweep_of_a_billion_runs",
     "frames_per_traversal_1e13", "route_length_1e11", "limits_are_overridable",
     "png_bomb_in_an_image_folder", "png_beyond_opencvs_pixel_cap", "png_beyond_opencvs_pixel_cap_with_the_limit_raised",
     "png_bomb_as_a_datasets_depth_image", "png_bomb_in_a_log_replay",

@@ -165,12 +165,12 @@ def parse_override(item: str, origin: str) -> tuple[str, Any]:
     where the item came from in the error."""
     key, sep, value_text = item.partition("=")
     if not sep or not key:
-        raise RecipeError(f"{origin} {item!r}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
+        raise RecipeError(f"{origin} {_shown(item)}: expected KEY=VALUE, e.g. loop_detector.params.threshold=0.3")
     try:
         return key, _bounded_yaml(value_text) if value_text.strip() else ""
     except ValueError as exc:
         reason = str(exc).split("YAML: ", 1)[-1].lstrip(": ")
-        raise RecipeError(f"{origin} {item!r}: value is not valid YAML: {reason}") from None
+        raise RecipeError(f"{origin} {_shown(item)}: value is not valid YAML: {reason}") from None
 
 
 def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str = "--set") -> dict[str, Any]:
@@ -198,18 +198,23 @@ def apply_overrides(raw: dict[str, Any], overrides: Iterable[str], origin: str =
                 if node.get(part) is None:
                     if depth == 0 and part in STAGE_KINDS and parts[1] != "plugin":
                         raise RecipeError(
-                            f"{origin} {item!r}: the recipe has no {part!r} stage; set {part}.plugin first"
+                            f"{origin} {_shown(item)}: the recipe has no {part!r} stage; set {part}.plugin first"
                         )
                     node[part] = {}
                 node = node[part]
             elif isinstance(node, list) and part.isdigit() and int(part) < len(node):
                 node = node[int(part)]
             else:
-                raise RecipeError(f"{origin} {item!r}: {'.'.join(parts[: depth + 1])} is not a mapping")
+                raise RecipeError(f"{origin} {_shown(item)}: {'.'.join(parts[: depth + 1])} is not a mapping")
         if not isinstance(node, dict):
-            raise RecipeError(f"{origin} {item!r}: {'.'.join(parts[:-1])} is not a mapping")
+            raise RecipeError(f"{origin} {_shown(item)}: {'.'.join(parts[:-1])} is not a mapping")
         node[parts[-1]] = value
     return result
+
+
+def _shown(item: str) -> str:
+    """An override as quoted in a message: one line, cut (a pasted document can be megabytes)."""
+    return repr(shorten(item, 120))
 
 
 def _is_plugin_switch(key: str) -> bool:

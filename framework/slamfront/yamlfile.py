@@ -59,12 +59,53 @@ def _expanded_nodes(data: Any, limit: int) -> int | None:
     return sizes.get(id(data), 1)
 
 
+def _check_events(text: str, limit: int) -> None:
+    """Walk the document's parser events (no recursion, nothing built) and refuse nesting
+    past :data:`MAX_DEPTH` and more than ``limit`` nodes with aliases expanded *before*
+    the composer sees it: libyaml's composer recurses once per level, so a 40,000-deep
+    list crashes the interpreter (a segfault, no message) before any later check runs.
+
+    :raises ValueError: the reason, short (with ``:LINE`` first).
+    :raises yaml.YAMLError: the text does not parse.
+    """
+    loader = _SAFE_LOADER(text)
+    opened: list[tuple[str | None, int]] = []  # (anchor, node count when it opened) per open collection
+    sizes: dict[str, int] = {}  # an anchor's node count, aliases inside it expanded
+    nodes = 0
+    try:
+        while loader.check_event():
+            event = loader.get_event()
+            line = f":{event.start_mark.line + 1}" if event.start_mark is not None else ""
+            if isinstance(event, yaml.AliasEvent):
+                if event.anchor not in sizes and any(anchor == event.anchor for anchor, _ in opened):
+                    raise ValueError(f"{line}: an alias refers to a node that contains it (a recursive document)")
+                nodes += sizes.get(event.anchor, 1)
+            elif isinstance(event, yaml.NodeEvent):
+                nodes += 1
+                if isinstance(event, yaml.CollectionStartEvent):
+                    opened.append((event.anchor, nodes - 1))
+                    if len(opened) > MAX_DEPTH:
+                        raise ValueError(f"{line}: not valid YAML: nested too deeply (over {MAX_DEPTH} levels)")
+                elif event.anchor is not None:
+                    sizes[event.anchor] = 1
+            elif isinstance(event, yaml.CollectionEndEvent) and opened:
+                anchor, start = opened.pop()
+                if anchor is not None:
+                    sizes[anchor] = nodes - start
+            if nodes > limit:
+                raise ValueError(f"{line}: {over_limit('yaml_nodes', nodes, 'the number of nodes with aliases expanded')}")
+    finally:
+        loader.dispose()
+
+
 def _bounded_yaml(text: str) -> Any:
     """``yaml.safe_load`` with what a hostile document can cost bounded.
 
     :raises ValueError: the reason, short (with ``:LINE`` first when known).
     """
+    limit = current_limits().yaml_nodes
     try:
+        _check_events(text, limit)
         # libyaml's parser when PyYAML has it (its wheels do): the same safe constructor, ~10x faster
         data = yaml.load(text, Loader=_SAFE_LOADER)  # noqa: S506 - a safe loader
     except yaml.YAMLError as exc:
@@ -73,7 +114,6 @@ def _bounded_yaml(text: str) -> Any:
         raise ValueError(f"{line}: not valid YAML: {shorten(str(getattr(exc, 'problem', None) or exc))}") from None
     except RecursionError:
         raise ValueError(": not valid YAML: nested too deeply") from None
-    limit = current_limits().yaml_nodes
     nodes = _expanded_nodes(data, limit)
     if nodes is None:
         raise ValueError(": an alias refers to a node that contains it (a recursive document)")
