@@ -20,11 +20,10 @@ cv2 = lazy_module("cv2")  # loads on first use: listing plugins does not import 
 class SeqSlamThumbnail(Descriptor):
     """OpenSeqSLAM's image preprocessing: grey, resize, patch normalisation.
 
-    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8; Rodrigues 2019 used 32x32), but
-    the resampling. ``resample: matlab`` is MATLAB ``imresize(..., 'lanczos3')`` as
+    Defaults are OpenSeqSLAM 2013's (64x32, patches of 8; Rodrigues 2019 used 32x32),
+    resampling included. ``resample: matlab`` is MATLAB ``imresize(..., 'lanczos3')`` as
     OpenSeqSLAM calls it, which low-passes before shrinking
-    (:func:`slamfront.core.thumbnail.imresize`; the ``nordland_openseqslam`` preset);
-    the default was chosen on Nordland chunks and synthetic worlds at two image sizes
+    (:func:`slamfront.core.thumbnail.imresize`); the OpenCV filters are opt-in
     (docs/loop_closure.md, "Thumbnail resampling"). An image
     already of the target size is not resampled (OpenSeqSLAM reads Nordland's 64x32
     images as they are). The vector holds the normalised pixel values as uint8,
@@ -40,9 +39,9 @@ class SeqSlamThumbnail(Descriptor):
         patch_size: int = Field(8, ge=2, description="patch side for normalisation")
         normalise: bool = Field(True, description="patch normalisation on (OpenSeqSLAM default) or off")
         resample: Literal["matlab", "lanczos4", "area"] = Field(
-            "lanczos4", description="matlab: MATLAB imresize's antialiased Lanczos-3, as OpenSeqSLAM; lanczos4: "
-            "OpenCV's Lanczos-4 without a low-pass; area: OpenCV's pixel-area average (default chosen on Nordland "
-            "chunks and synthetic worlds at 320x240 and 160x120, docs/loop_closure.md)"
+            "matlab", description="matlab (default): MATLAB imresize's antialiased Lanczos-3, as OpenSeqSLAM; lanczos4: "
+            "OpenCV's Lanczos-4 without a low-pass; area: OpenCV's pixel-area average (opt-in: on the whole Nordland route at "
+            "32x32 lanczos4 gives R@100%P 0.751 against matlab's 0.763)"
         )
 
         @model_validator(mode="after")

@@ -44,10 +44,11 @@ class SeqSlamConfig(AcceptanceConfig):
 
     ds: int = Field(10, ge=2, description="sequence length (OpenSeqSLAM 10, Rodrigues 2019: 40); even")
     search: Literal["lines", "paths"] = Field(
-        "paths", description="lines: OpenSeqSLAM's straight trajectories at vmin..vmax, the query running the "
+        "lines", description="lines (default, as OpenSeqSLAM): straight trajectories at vmin..vmax, the query running the "
         "reference forwards at nearly its pace; paths: paths of straight segments at any speed path_low..path_high "
         "each, forwards or (reverse) backwards, found by dynamic programming (a query at another or changing pace, "
-        "or driven the other way), answered at the query's own column"
+        "or driven the other way), answered at the query's own column; opt-in, not in the papers: on the whole Nordland "
+        "route it gives R@100%P 0.745 against the lines' 0.763"
     )
     vmin: float = Field(0.8, gt=0, description="search lines: slowest trajectory, reference frames per query frame")
     vmax: float = Field(1.2, gt=0, description="search lines: fastest trajectory")
