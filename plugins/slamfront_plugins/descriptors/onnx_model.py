@@ -128,8 +128,7 @@ class OnnxDescriptor(Descriptor):
 
     Bring a NetVLAD (Arandjelovic 2016), CosPlace (Berton 2022), EigenPlaces (Berton 2023),
     MixVPR (Ali-bey 2023), SALAD (Izquierdo 2024) or MegaLoc (Berton 2025) model exported to
-    ONNX, with the preprocessing it was trained with (shipped recipe fragments, see
-    docs/learned_descriptors.md). Refused before the first frame: a missing or unreadable
+    ONNX, with the preprocessing it was trained with. Refused before the first frame: a missing or unreadable
     model, a model larger than ``SLAMFRONT_LIMITS`` ``model_bytes``, input or output shapes
     that do not fit the preprocessing; at a frame: NaN or infinite outputs.
     """
