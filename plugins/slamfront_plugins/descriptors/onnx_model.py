@@ -13,7 +13,7 @@ L2 normalisation. The distance the vectors are compared by (``cosine`` or ``l2``
 of the config and travels with every ``Features`` message, so detectors follow it.
 :meth:`OnnxDescriptor.describe_many` runs images in batches of at most ``batch_size``
 (a run hands the descriptor one frame at a time; offline evaluation and the benchmark
-use the batches). See docs/learned_descriptors.md for exporting the public models.
+use the batches).
 """
 
 from __future__ import annotations
