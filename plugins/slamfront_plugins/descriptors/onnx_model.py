@@ -12,8 +12,7 @@ flattened, an optional projection (PCA or whitening, a ``.npy`` matrix) and an o
 L2 normalisation. The distance the vectors are compared by (``cosine`` or ``l2``) is part
 of the config and travels with every ``Features`` message, so detectors follow it.
 :meth:`OnnxDescriptor.describe_many` runs images in batches of at most ``batch_size``
-(a run hands the descriptor one frame at a time; offline evaluation and the benchmark
-use the batches).
+(a run hands the descriptor one frame at a time, so a run's calls hold one image).
 """
 
 from __future__ import annotations
