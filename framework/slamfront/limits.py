@@ -36,6 +36,7 @@ class Limits(NamedTuple):
     yaml_nodes: int = 200_000
     text_bytes: int = 16 << 20
     chunk_bytes: int = 256 << 20
+    model_bytes: int = 2 << 30
 
 
 LIMIT_DESCRIPTIONS = {
@@ -46,6 +47,7 @@ LIMIT_DESCRIPTIONS = {
     "yaml_nodes": "nodes of a YAML document with its aliases expanded",
     "text_bytes": "size of a recipe or sweep file, bytes",
     "chunk_bytes": "uncompressed size of one MCAP chunk, bytes",
+    "model_bytes": "size of one model file a descriptor loads (ONNX), bytes",
 }
 """What each limit bounds."""
 
