@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -102,6 +104,31 @@ def test_signals_wait_for_the_end_of_a_critical_section() -> None:
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(1)
     assert signal.getsignal(signal.SIGINT) is previous
+
+
+def test_a_signal_while_the_log_is_being_created_leaves_a_finalised_log(tmp_path: Path) -> None:
+    """The signal that lands between creating the file and writing its header (a sweep
+    stopped just as a run starts) is raised once the header is written, after the log is
+    finalised: never a zero-byte ``run.mcap`` in a folder the next run reads."""
+    from slamfront.mcaplog.writer import RunLogWriter
+
+    path = tmp_path / "run.mcap"
+    with Interrupts() as interrupts:
+        signalled = False
+
+        @contextlib.contextmanager
+        def critical() -> Iterator[None]:
+            nonlocal signalled
+            with interrupts.critical():
+                if not signalled:
+                    signalled = True
+                    os.kill(os.getpid(), signal.SIGINT)  # held back until the section ends
+                    time.sleep(0.01)
+                yield
+
+        with pytest.raises(RunInterrupted):
+            RunLogWriter(path, critical=critical)
+    assert summarize(path).complete and validate_log(path).valid
 
 
 @pytest.fixture(scope="module")

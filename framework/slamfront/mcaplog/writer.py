@@ -169,38 +169,53 @@ class RunLogWriter:
         self.path = Path(path)
         self._critical = critical
         self._on_sync = on_sync
-        # Created and vouched for (an empty prefix on this inode) before a signal can land:
-        # a run stopped before its first fsync leaves a log the next run may replace.
-        with critical():
-            try:
-                self._stream = _HashedStream(open_output(self.path))
-            except SlamfrontError as exc:
-                raise LogError(str(exc)) from None
-            except OSError as exc:
-                raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
-            if on_sync is not None:
-                on_sync(0, self._stream.sha256.hexdigest(), False)
-        self._failed = False
-        # data CRCs: readers can check every byte of the data section without opening a chunk
-        self._writer = Writer(
-            self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
-        )
-        with self._changing():
-            self._writer.start(profile=PROFILE, library=library)
         self._channels: dict[str, tuple[int, str]] = {}
         self._schemas: dict[tuple[str, str, bytes], int] = {}
         self._protobuf_schema_data: dict[str, bytes] = {}
         self._json_schema_data: dict[str, bytes] = {}
         self._sequence: dict[int, int] = {}
         self._sinks: list[LogSink] = []
-        self._background = _Background()
         self._batch: list[tuple[int, int, int, bytes, int]] = []
         self._batch_bytes = 0
         self._closed = False
+        self._failed = False
         self._sync_seconds = sync_seconds
         self._last_sync = time.monotonic()
         self.n_messages = 0
         self.n_syncs = 0
+        # Created, vouched for (an empty prefix on this inode) and given its header in one
+        # section a signal cannot cut: a signal that arrived meanwhile is raised as the
+        # section ends, and the log, already started, is then finalised before it goes on
+        # (a caller whose constructor raised has no writer to close).
+        started = False
+        try:
+            with critical():
+                try:
+                    self._stream = _HashedStream(open_output(self.path))
+                except SlamfrontError as exc:
+                    raise LogError(str(exc)) from None
+                except OSError as exc:
+                    raise LogError(f"{self.path}: cannot create log: {exc.strerror or exc}") from exc
+                if on_sync is not None:
+                    on_sync(0, self._stream.sha256.hexdigest(), False)
+                # data CRCs: readers can check every byte of the data section without opening a chunk
+                self._writer = Writer(
+                    self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
+                )
+                try:
+                    self._writer.start(profile=PROFILE, library=library)
+                except OSError as exc:
+                    self._failed = True
+                    raise LogError(f"{self.path}: cannot write the log: {exc.strerror or exc}") from None
+                self._background = _Background()
+                started = True
+        except BaseException:
+            if started:
+                self.close()
+            elif hasattr(self, "_stream"):
+                with contextlib.suppress(OSError):
+                    self._stream.close()
+            raise
 
     # -- channels ------------------------------------------------------------------------
 
