@@ -189,7 +189,7 @@ class RunLogWriter:
         # (a caller whose constructor raised has no writer to close).
         started = False
         try:
-            with critical():
+            with self._changing():  # a failed header write is said like any other failed write
                 try:
                     self._stream = _HashedStream(open_output(self.path))
                 except SlamfrontError as exc:
@@ -202,11 +202,7 @@ class RunLogWriter:
                 self._writer = Writer(
                     self._stream, chunk_size=chunk_size, compression=_COMPRESSION[compression], enable_data_crcs=True
                 )
-                try:
-                    self._writer.start(profile=PROFILE, library=library)
-                except OSError as exc:
-                    self._failed = True
-                    raise LogError(f"{self.path}: cannot write the log: {exc.strerror or exc}") from None
+                self._writer.start(profile=PROFILE, library=library)
                 self._background = _Background()
                 started = True
         except BaseException:
